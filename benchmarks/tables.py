@@ -83,7 +83,9 @@ def pooled_rows(files: list[tuple[str, Path]]) -> list[dict[str, Any]]:
             r["map"] = f"{label}/{r['map']}" if label else r["map"]
             for k in METRICS:
                 r[k] = float(r[k]) if r.get(k) not in (None, "") else None
-            pooled[(r["method"], r["map"], r["scale"], r["seed"])] = r
+            # An episode's scene as compare pairs it (comparison.SceneKey): a plan of one name at two cell sizes
+            # (easy=A_0.05 easy=A_0.1) is two plans, even of one scale, not one whose later episode replaces the other.
+            pooled[(r["method"], r["map"], r["scale"], r["traversable_area_m2"], r["seed"])] = r
     return list(pooled.values())
 
 
@@ -154,11 +156,16 @@ def main(argv: list[str] | None = None) -> int:
             return 0
     except ValueError as exc:
         parser.error(str(exc))
+    lines = []
+    for _, p in files:  # a summary.json cut short or of another shape: one line naming it, as an episodes.csv's
+        try:
+            lines += rows(json.loads(p.read_text()))
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            parser.error(f"{p}: not a summary.json eval wrote ({type(exc).__name__}: {exc})")
     print(HEADER)
     print("| --- " * 9 + "|")
-    for _, p in files:
-        for line in rows(json.loads(p.read_text())):
-            print(line)
+    for line in lines:
+        print(line)
     return 0
 
 

@@ -37,11 +37,13 @@ EfficiencyTable = dict[tuple[str, str], dict[SceneKey, float]]
 
 EPISODE_COLUMNS = ("method", "map", "scale", "traversable_area_m2", "seed", "efficiency_m2_per_step")
 """What a comparison reads of each ``episodes.csv`` row."""
-SETUP_COLUMNS = ("sensor_fov_deg", "sim", "cell_size_m")
+SETUP_COLUMNS = ("sensor_fov_deg", "sim", "cell_size_m", "max_steps")
 """``episodes.csv``'s columns of what an episode ran with beyond its method, plan and seed: the sensor's field of view
-(degrees), the simulator (``2d``, ``mujoco``; empty on a real robot) and the plan's cell size (m: ``--m-per-px`` for a
-PNG plan). Episodes of one plan that differ in one of them do not measure the methods alone: ``compare`` warns
-(``mixed_setups_said``). Files of an eval before these columns have none (``file_setup`` reads their summary.json)."""
+(degrees), the simulator (``2d``, ``mujoco``; empty on a real robot), the plan's cell size (m: ``--m-per-px`` for a
+PNG plan) and the step limit (``episode.max_steps``: an episode cut at 40 steps has the m2/step of its first steps,
+the most efficient, and beat one run to coverage). Episodes of one plan that differ in one of them do not measure the
+methods alone: ``compare`` warns (``mixed_setups_said``). Files of an eval before these columns have none
+(``file_setup`` reads their summary.json)."""
 MIN_SCENES = 3
 """Fewer shared scenes than this give no comparison (an interval needs a few). Plans are counted: the seeds of one plan
 are resampled together (``bootstrap_mean_ci``), so one plan under 3 seeds gives an interval of one plan, a point."""
@@ -285,12 +287,14 @@ def file_episodes(label: str, path: Path, exclude_maps: Iterable[str] = (), rena
 
 def file_setup(path: Path) -> dict[str, str]:
     """The ``SETUP_COLUMNS`` an ``episodes.csv`` of an eval before them would have said, from the summary.json beside
-    it (``meta.config.sensor.fov_deg``, ``meta.sim``, ``meta.cell_sizes_m`` when one); {} without one."""
+    it (``meta.config.sensor.fov_deg``, ``meta.sim``, ``meta.cell_sizes_m`` when one, ``meta.config.episode.max_steps``);
+    {} without one."""
     try:
         meta = json.loads((Path(path).parent / "summary.json").read_text(encoding="utf-8"))["meta"]
         fov = meta.get("config", {}).get("sensor", {}).get("fov_deg")
         cells = meta.get("cell_sizes_m") or []
-        known = {"sensor_fov_deg": fov, "sim": meta.get("sim"), "cell_size_m": cells[0] if len(cells) == 1 else None}
+        max_steps = meta.get("config", {}).get("episode", {}).get("max_steps")
+        known = {"sensor_fov_deg": fov, "sim": meta.get("sim"), "cell_size_m": cells[0] if len(cells) == 1 else None, "max_steps": max_steps}
     except (OSError, ValueError, TypeError, KeyError, AttributeError):
         return {}
     return {column: setup_value(value) for column, value in known.items() if value not in (None, "")}

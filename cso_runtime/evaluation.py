@@ -112,6 +112,7 @@ from cso_runtime.report import (
     SPREAD_NOTE,
     STD_SUFFIX,
     TABLE1_COLUMNS,
+    failure_said,
     shows_ablations,
     table1_cells,
     table1_rows,
@@ -149,9 +150,11 @@ ended ``no_frontier`` (``EpisodeResult.ended_why``), empty for any other end; th
 
 def run_setup(meta: dict[str, Any]) -> dict[str, Any]:
     """The ``SETUP_COLUMNS`` every episode of a run shares, from its summary.json's ``meta``: the sensor's field of
-    view (``config.sensor.fov_deg``) and the simulator (``sim``: None on a real robot); None where it is not said."""
-    sensor = (meta.get("config") or {}).get("sensor") or {}
-    return {"sensor_fov_deg": sensor.get("fov_deg"), "sim": meta.get("sim")}
+    view (``config.sensor.fov_deg``), the simulator (``sim``: None on a real robot) and the step limit
+    (``config.episode.max_steps``); None where it is not said."""
+    config = meta.get("config") or {}
+    sensor, episode = config.get("sensor") or {}, config.get("episode") or {}
+    return {"sensor_fov_deg": sensor.get("fov_deg"), "sim": meta.get("sim"), "max_steps": episode.get("max_steps")}
 
 
 DEFAULT_M_PER_PX = 0.1
@@ -916,9 +919,11 @@ def _std(rows: list[dict[str, Any]], key: str) -> float | None:
 def _ci95(rows: list[dict[str, Any]], key: str) -> list[float] | None:
     """95 % interval of ``key``'s mean by the bootstrap of ``compare`` (``bootstrap_mean_ci``: the plans resampled,
     a plan's episodes kept together, a fixed seed, so the same episodes give the same interval); None under two
-    plans: one plan gives nothing to resample."""
-    kept = _rows_with(rows, key)
-    plans = [r["map"] for _, r in kept]
+    plans: one plan gives nothing to resample. The episodes are taken in episodes.csv's order (by plan, then seed),
+    whatever order they finished in: the bootstrap's resamples pick by position, so an eval with ``--workers``, or one
+    ``--resume`` finished (its kept episodes first), gave the same episodes another interval."""
+    kept = sorted(_rows_with(rows, key), key=lambda vr: (str(vr[1]["map"]), str(vr[1].get("traversable_area_m2")), str(vr[1].get("seed")), vr[0]))
+    plans = [(str(r["map"]), str(r.get("traversable_area_m2"))) for _, r in kept]  # a plan as compare tells it: one name at two cell sizes is two
     if len(set(plans)) < 2:
         return None
     low, high = bootstrap_mean_ci(np.array([v for v, _ in kept]), clusters=plans)
@@ -958,6 +963,7 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, Any]], method
     """Per-method means of the Table 1 metrics with their sample standard deviations, a per-scale breakdown, the failures, and each method
     against ``baseline`` scene by scene (``cso_runtime.comparison``; empty when it did not run)."""
     summary: dict[str, Any] = {"meta": meta, "aggregation": AGGREGATION, "methods": {}}
+    failures = sorted(failures, key=lambda f: (str(f["method"]), str(f["map"]), str(f.get("seed", ""))))  # not in the order they happened
     for method in methods:
         mine = [r for r in rows if r["method"] == method]
         entry: dict[str, Any] = table1_stats(mine)
@@ -966,7 +972,9 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, Any]], method
         entry["efficiency_episodes"] = _efficiency_episodes(mine)
         entry["terminated_by"] = {t: sum(1 for r in mine if r["terminated_by"] == t) for t in sorted({r["terminated_by"] for r in mine})}
         # Why each of its episodes that ended no_frontier did (rows of older runs have no such column, and none is said).
-        entry["ended_why"] = [{"map": r["map"], "seed": r["seed"], "why": r["ended_why"]} for r in mine if r.get("ended_why")]
+        entry["ended_why"] = sorted(  # by plan and seed, as episodes.csv: not the order episodes finished in (--workers, --resume)
+            ({"map": r["map"], "seed": r["seed"], "why": r["ended_why"]} for r in mine if r.get("ended_why")), key=lambda e: (str(e["map"]), str(e["seed"]))
+        )
         entry["by_scale"] = {}
         for scale in SCALES:
             part = [r for r in mine if r["scale"] == scale]
@@ -1181,6 +1189,7 @@ def plan_eval(request: EvalRequest, out_checked: bool = True) -> EvalPlan:
     request.validate()
     config = request.exploration_config()
     scenes = resolve_scenes(request.maps, request.limit, request.m_per_px)
+    refuse_scenes_sharing_files(scenes)
     out = Path(request.out_dir)
     if out_checked:
         refuse_the_other_kind_of_eval(request)
@@ -1225,6 +1234,25 @@ def plan_eval(request: EvalRequest, out_checked: bool = True) -> EvalPlan:
     if out_checked:
         refuse_another_configuration(request, plan)
     return plan
+
+
+def refuse_scenes_sharing_files(scenes: list[SceneRef]) -> None:
+    """Raise ConfigError where two scenes of a spec would write the same files: the same name (``a.yaml`` and ``a.yml``
+    in one folder), or names that ``file_stem`` makes one (``room 1.png`` and ``room_1.png``). Each episode would write
+    over the other's npz, map and trajectory plot, one plan's results lost from the folder (and ``--resume`` would then
+    refuse it, the file of another plan under its name)."""
+
+    def said(r: SceneRef) -> str:
+        return f"{r.name!r} ({r.path})" if r.path else repr(r.name)
+
+    seen: dict[str, SceneRef] = {}
+    for ref in scenes:
+        other = seen.setdefault(file_stem(ref.name), ref)
+        if other is not ref:
+            raise ConfigError(
+                f"scenes {said(other)} and {said(ref)} would share the files episodes/<method>/{file_stem(ref.name)}.npz, its map and "
+                "trajectory plot, one plan's results written over by the other's: rename one of them, or run them in two evals, each with its own --out"
+            )
 
 
 DRY_RUN_SCENES_SHOWN = 5
@@ -1619,11 +1647,11 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     elif paired.get("baseline") in summary["methods"] and len(summary["methods"]) > 1:  # say why there is no comparison
         console.print(escape(f"no comparison with {paired['baseline']} scene by scene (paired.csv): no other method shares "
                              f"{TOO_FEW_SCENES} with it"), soft_wrap=True, highlight=False)
+    elif paired.get("baseline") and len(summary["methods"]) > 1:  # `--method cso,utility`, `--baseline X` of a method not run
+        console.print(escape(f"no comparison scene by scene (paired.csv): its baseline {paired['baseline']} did not run; add it to --method, "
+                             f"or give --baseline one of {', '.join(summary['methods'])}"), soft_wrap=True, highlight=False)
     for f in summary["failures"]:
-        why = f["error"].splitlines()[0] if f["error"] else ""
-        seed = f" (seed {f['seed']})" if "seed" in f else ""  # --seeds: which seed's episode
-        failed = escape(f"{f['method']} {f['map']}{seed}: {why}")
-        console.print(f"[red]failed[/red] {failed}", soft_wrap=True)  # a path in it must stay whole
+        console.print(f"[red]failed[/red] {escape(failure_said(f))}", soft_wrap=True)  # a path in it must stay whole; --seeds: its seed
     console.print(escape(closing_said(summary, out_dir)), soft_wrap=True, highlight=False)
 
 

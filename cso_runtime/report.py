@@ -336,6 +336,14 @@ def _map_figures(out_dir: Path, summary: dict[str, Any]) -> dict[str, list[str]]
     return by_map
 
 
+def failure_said(failure: dict[str, Any]) -> str:
+    """One failed episode of ``summary.json``'s ``failures`` as the console and the report say it: method, plan, with
+    ``--seeds`` its seed (the same plan failed under two seeds is two failures), and the first line of why."""
+    why = failure["error"].splitlines()[0] if failure.get("error") else ""
+    seed = f" (seed {failure['seed']})" if "seed" in failure else ""
+    return f"{failure['method']} {failure['map']}{seed}: {why}"
+
+
 def run_settings_text(meta: dict[str, Any]) -> str:
     """The run's header line: what made the table, with the sensor's field of view and the step limit, which decide
     whether it compares with the paper's (360 degrees, 3000 steps); ``meta.config`` is absent from older summaries."""
@@ -425,7 +433,7 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
         parts += [_table(SCENE_COLUMNS, scenes), "</details>"]
     if summary.get("failures"):
         parts.append("<h2>Failures</h2><ul>")
-        parts += [f"<li>{html.escape(f['method'])} {html.escape(f['map'])}: {html.escape((f['error'] or '').splitlines()[0] if f['error'] else '')}</li>" for f in summary["failures"]]
+        parts += [f"<li>{html.escape(failure_said(f))}</li>" for f in summary["failures"]]
         parts.append("</ul>")
     figures = [(out_dir / name, title) for name, title in FIGURES if (out_dir / name).is_file()]
     if figures:

@@ -313,12 +313,37 @@ def test_compare_warns_when_its_files_mix_episodes_of_different_sensors_on_the_s
     (tmp_path / "old").mkdir()
     old = write(tmp_path / "old" / "episodes.csv", rows("cso", "large", {"a": 1.2, "b": 1.2, "c": 1.1}))
     alone = subprocess.run(exe + [str(base), str(old)], capture_output=True, text=True, timeout=60)
-    assert alone.returncode == 0 and f"note: {old} says no setup (sensor_fov_deg, sim, cell_size_m:" in " ".join(alone.stderr.split()), alone.stderr
+    assert alone.returncode == 0 and f"note: {old} says no setup (sensor_fov_deg, sim, cell_size_m, max_steps:" in " ".join(alone.stderr.split()), alone.stderr
     meta = {"sim": "mujoco", "config": {"sensor": {"fov_deg": 180.0}}, "cell_sizes_m": [0.05]}
     (tmp_path / "old" / "summary.json").write_text(json.dumps({"meta": meta, "methods": {}}))
     read = subprocess.run(exe + [str(base), str(old)], capture_output=True, text=True, timeout=60)
     said = " ".join(read.stderr.split())
     assert read.returncode == 0 and f"the same plans ran with different sim: 2d ({base}), mujoco ({old})" in said and "sensor_fov_deg" not in said, said
+
+
+def test_compare_warns_when_its_files_ran_the_same_plans_under_different_step_limits(tmp_path: Path):
+    """``compare A B`` of a greedy-dist eval run to coverage (--max-steps 300) and a random one cut at 40 steps said
+    random +36 % m2/step without a word: an episode cut short keeps the m2/step of its first steps, the most efficient.
+    episodes.csv now says each episode's step limit (``max_steps``, the last column) and ``compare`` warns of it as of
+    the sensor; a file of an eval before the column is read from the summary.json beside it."""
+    from cso_runtime.comparison import SETUP_COLUMNS, mixed_setups_said
+
+    assert SETUP_COLUMNS[-1] == "max_steps"
+    setup = {"sensor_fov_deg": 180.0, "sim": "2d", "cell_size_m": 0.05}
+
+    def run(folder: str, method: str, max_steps: int | None) -> Path:
+        (tmp_path / folder).mkdir()
+        episodes = [{**r, **setup, **({"max_steps": max_steps} if max_steps else {})} for r in rows(method, "middle", {"a": 1.0, "b": 1.1, "c": 0.9})]
+        return write_episodes_csv(tmp_path / folder / "episodes.csv", episodes, FIELDS + tuple(setup) + (("max_steps",) if max_steps else ()))
+
+    full, cut, also_full = run("full", "greedy-dist", 300), run("cut", "random", 40), run("also_full", "random", 300)
+    (said,) = mixed_setups_said([("", full), ("", cut)])
+    assert said.startswith(f"warning: the same plans ran with different max_steps: 300 ({full}), 40 ({cut}) on 3 plans (a, b, c)"), said
+    assert mixed_setups_said([("", full), ("", also_full)]) == []
+    old = run("old", "random", None)  # an eval before the column: its summary.json says the step limit
+    (tmp_path / "old" / "summary.json").write_text(json.dumps({"meta": {"sim": "2d", "config": {"sensor": {"fov_deg": 180.0}, "episode": {"max_steps": 40}}}, "methods": {}}))
+    (said,) = mixed_setups_said([("", full), ("", old)])
+    assert said.startswith(f"warning: the same plans ran with different max_steps: 300 ({full}), 40 ({old})"), said
 
 
 def test_compare_says_why_a_baseline_with_episodes_has_none_to_compare(tmp_path: Path):

@@ -115,13 +115,13 @@ def test_episodes_csv_says_the_sensor_simulator_and_cell_size_each_episode_ran_w
     ``compare`` checks (``mixed_setups_said``); an eval --resume into the other sensor's folder was already refused."""
     from cso_runtime.comparison import SETUP_COLUMNS, mixed_setups_said
 
-    assert CSV_FIELDS[-len(SETUP_COLUMNS) :] == SETUP_COLUMNS == ("sensor_fov_deg", "sim", "cell_size_m")
+    assert CSV_FIELDS[-len(SETUP_COLUMNS) :] == SETUP_COLUMNS == ("sensor_fov_deg", "sim", "cell_size_m", "max_steps")
     ring, front = tmp_path / "ring", tmp_path / "front"
     run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=ring, max_steps=4, lidar_fov_deg=360.0))
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=front, max_steps=4))
     with (ring / "episodes.csv").open(newline="") as fh:
         (row,) = csv.DictReader(fh)
-    assert (row["sensor_fov_deg"], row["sim"], row["cell_size_m"]) == ("360.0", "2d", "0.05")
+    assert (row["sensor_fov_deg"], row["sim"], row["cell_size_m"], row["max_steps"]) == ("360.0", "2d", "0.05", "4")
     (said,) = mixed_setups_said([("", front / "episodes.csv"), ("", ring / "episodes.csv")])
     assert said.startswith(f"warning: the same plans ran with different sensor_fov_deg: 180 ({front / 'episodes.csv'}), 360 ({ring / 'episodes.csv'}) on 1 plan (gen_small_0)"), said
     with pytest.raises(ConfigError, match="differs in sensor.fov_deg: 360.0 there, 180.0 here"):
@@ -339,9 +339,9 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
     assert all(int(r["steps"]) <= 60 for r in rows)
     # The simulator's pace, in two columns after the others (whose names and order are a contract): simulated
     # seconds from the sim's clock (one 0.25 s control period a step) and those over the episode's wall clock; then
-    # why an episode ended no_frontier; then what it ran with (sensor, simulator, cell size).
+    # why an episode ended no_frontier; then what it ran with (sensor, simulator, cell size, step limit).
     assert CSV_FIELDS[:15] == ("method", "map", "scale", "seed", *METRICS, "terminated_by", "traversable_area_m2", "decisions", "wall_s")
-    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor", "ended_why", "sensor_fov_deg", "sim", "cell_size_m")
+    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor", "ended_why", "sensor_fov_deg", "sim", "cell_size_m", "max_steps")
     for r in rows:
         assert float(r["sim_time_s"]) == pytest.approx(int(r["steps"]) * 0.25)
         assert float(r["real_time_factor"]) == pytest.approx(float(r["sim_time_s"]) / float(r["wall_s"]), rel=0.05, abs=0.5)
@@ -645,6 +645,53 @@ def test_resume_runs_again_an_episode_of_another_scene_under_the_same_name(tmp_p
     assert second["meta"]["cell_sizes_m"] == [0.05] and second["meta"]["m_per_px"] == 0.05  # a PNG plan: the flag counts
 
 
+def test_eval_refuses_two_plans_whose_names_share_one_episode_file(tmp_path: Path):
+    """``room 1.png`` and ``room_1.png`` (or ``a.yaml`` and ``a.yml``) in one folder are two plans whose files are one:
+    ``episodes/<method>/room_1.npz``, its map and trajectory plot. The second episode wrote over the first, one plan's
+    results were lost from the folder, and ``--resume`` then refused it. The eval is refused before any episode,
+    naming both plans, as two methods sharing a folder are."""
+    plans = tmp_path / "plans"
+    plans.mkdir()
+    for name in ("room 1.png", "room_1.png", "img_2.png"):
+        shutil.copy(Path(cso_runtime.__file__).parent / "data" / "scenes" / "img_1.png", plans / name)
+    out = tmp_path / "out"
+    request = EvalRequest(methods=["greedy-dist"], maps=str(plans), out_dir=out, max_steps=10)
+    with pytest.raises(ConfigError, match=r"scenes 'room 1' \(.*room 1\.png\) and 'room_1' \(.*room_1\.png\) would share the files "
+                       r"episodes/<method>/room_1\.npz"):
+        plan_eval(request)
+    assert not out.exists()
+    result = subprocess.run([sys.executable, "-m", "cso_runtime", "eval", "--maps", str(plans), "--out", str(out), "--max-steps", "10", "--dry-run"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "would share the files" in result.stderr, result.stderr
+    (plans / "room 1.png").unlink()
+    (plans / "yard.yaml").write_text("image: room_1.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    (plans / "yard.yml").write_text((plans / "yard.yaml").read_text())
+    with pytest.raises(ConfigError, match=r"scenes 'yard' \(.*yard\.yaml\) and 'yard' \(.*yard\.yml\) would share"):
+        plan_eval(request)
+    (plans / "yard.yml").unlink()
+    assert [job.scene.name for job in plan_eval(request).jobs] == ["yard"]  # one plan a name: runs
+
+
+def test_the_report_names_the_seed_of_each_failed_episode_of_an_eval_of_several_seeds(tmp_path: Path, capsys):
+    """With ``--seeds``, a plan that fails fails once a seed: the console said each failure's seed, but report.html
+    listed the two as one line twice, as if the same episode were counted twice."""
+    from cso_runtime.evaluation import print_summary
+
+    plans = tmp_path / "plans"
+    plans.mkdir()
+    shutil.copy(Path(cso_runtime.__file__).parent / "data" / "scenes" / "img_1.png", plans / "good.png")
+    (plans / "bad.png").write_text("not a picture")
+    out = tmp_path / "out"
+    summary = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(plans), out_dir=out, max_steps=5, seeds=[0, 1]))
+    assert [(f["map"], f["seed"]) for f in summary["failures"]] == [("bad", 0), ("bad", 1)]
+    page = (out / "report.html").read_text()
+    failures = page.split("<h2>Failures</h2>", 1)[1].split("</ul>", 1)[0]
+    assert re.findall(r"<li>greedy-dist bad \(seed (\d)\): .*?bad\.png", failures) == ["0", "1"], failures
+    print_summary(summary, out)
+    said = capsys.readouterr().out
+    assert "failed greedy-dist bad (seed 0): " in said and "failed greedy-dist bad (seed 1): " in said
+
+
 def _episode_whose_process_dies_on_one_scene(job):
     """A worker that is killed (as by the kernel's OOM killer) whenever it runs gen_small_1."""
     import os
@@ -922,6 +969,13 @@ def test_the_console_says_why_a_run_with_the_baseline_has_no_comparison(tmp_path
     out = capsys.readouterr().out
     assert "no comparison" not in out and "Against greedy-dist, scene by scene" in out
     print_summary(summarize(two, [], ["cso"], {}), tmp_path)  # the baseline did not run: nothing to explain
+    assert "no comparison" not in capsys.readouterr().out
+    # Two methods, neither the baseline (`--method cso,utility`, or a --baseline of a method not run): not a word was said.
+    others = [row(m, n, e) for m, e in (("utility", 1.0), ("cso", 1.1)) for n in ("img_1", "img_2", "img_3")]
+    print_summary(summarize(others, [], ["utility", "cso"], {}), tmp_path)
+    assert ("no comparison scene by scene (paired.csv): its baseline greedy-dist did not run; add it to --method, or give --baseline one of "
+            "utility, cso") in " ".join(capsys.readouterr().out.split())
+    print_summary(summarize(others, [], ["utility", "cso"], {}, baseline="utility"), tmp_path)
     assert "no comparison" not in capsys.readouterr().out
 
 
@@ -2217,6 +2271,40 @@ def test_summary_gives_each_table_1_mean_its_95_percent_bootstrap_interval_over_
     saved = json.loads((tmp_path / "one" / "summary.json").read_text())["methods"]["greedy-dist"]
     for part in (saved, saved["by_scale"]["small"]):
         assert all(f"{k}_ci95" in part and part[f"{k}_ci95"] is None for k in METRICS)
+
+
+def test_the_table_1_intervals_do_not_depend_on_the_order_the_episodes_finished_in(tmp_path: Path):
+    """The bootstrap picks its resamples by position, and summary.json's ``<metric>_ci95`` took the episodes in the order
+    they finished: an eval finished by ``--resume`` (its kept episodes first, those it ran last) or run with
+    ``--workers`` gave the very same episodes another interval. They are taken as episodes.csv lists them; so are the
+    summary's lists (the why of each ``no_frontier`` end, the failures)."""
+    from cso_runtime.evaluation import summarize
+
+    out = tmp_path / "out"
+    request = EvalRequest(methods=["greedy-dist"], maps="generated:small:8:0", out_dir=out, max_steps=200)
+    first = run_eval(request)["methods"]["greedy-dist"]
+    for name in ("gen_small_0", "gen_small_3"):
+        (out / "episodes" / "greedy-dist" / f"{name}.npz").unlink()
+    request.resume = True
+    again = run_eval(request)
+    assert again["meta"]["resumed_episodes"] == 6
+    resumed = again["methods"]["greedy-dist"]
+    for k in METRICS:
+        if k.startswith("decision_ms"):  # timed: each run its own
+            continue
+        assert resumed[k] == first[k], k  # the same episodes
+        assert resumed[f"{k}_ci95"] == first[f"{k}_ci95"], k
+
+    rows = [
+        {"method": "m", "map": f"p{i}", "scale": "small", "seed": 0, "terminated_by": "no_frontier" if i % 3 else "coverage",
+         "ended_why": f"{i} frontier cells unreachable" if i % 3 else "", "efficiency_m2_per_step": 0.1 + 0.07 * (i % 5) + 0.01 * i,
+         **{k: float(i * i % 7) for k in METRICS if k != "efficiency_m2_per_step"}}
+        for i in range(12)
+    ]
+    failures = [{"method": "m", "map": f"q{i}", "error": "boom"} for i in range(3)]
+    shuffled = rows[5:] + rows[:5][::-1]
+    # The whole summary (the why of each no_frontier end, the failures too) as with the episodes in order.
+    assert summarize(shuffled, failures[::-1], ["m"], {}, baseline="") == summarize(rows, failures, ["m"], {}, baseline="")
 
 
 def test_the_report_lists_every_episode_in_a_collapsed_per_scene_table(tmp_path: Path):

@@ -142,3 +142,43 @@ def test_a_cut_episodes_csv_among_several_is_named_in_one_line(tmp_path, capsys)
         assert exited.value.code == 2
         err = capsys.readouterr().err
         assert f"{cut}: line 4 has 6 cells" in err and "Traceback" not in err, err
+
+
+def test_a_plan_of_one_name_at_two_cell_sizes_is_two_plans_in_table_1_as_in_its_paired_cell(tmp_path, capsys):
+    """``easy=A_0.05 easy=A_0.1`` (BENCHMARKS.md pools so): a plan of one name at two cell sizes has two traversable
+    areas, two scenes to compare. Table 1 kept one episode of the two where both fell in one scale (a small PNG plan):
+    the later file's replaced the earlier's, Table 1 counted half the episodes while ``compare`` paired all of them."""
+    def at(cell_m: float, method: str, map_: str, efficiency: float) -> dict:
+        return {**episode(method, map_, "small", efficiency), "traversable_area_m2": 16.0 if cell_m == 0.1 else 4.0, "cell_size_m": cell_m}
+
+    coarse = write(tmp_path / "coarse.csv", [at(0.1, m, p, e) for m, e in (("greedy-dist", 1.0), ("cso", 1.1)) for p in "abc"])
+    fine = write(tmp_path / "fine.csv", [at(0.05, m, p, e) for m, e in (("greedy-dist", 0.5), ("cso", 0.6)) for p in "abc"])
+    tables = load_tables()
+    assert tables.main([f"easy={coarse}", f"easy={fine}"]) == 0
+    rows = {(c[0], c[1]): c for c in map(cells, capsys.readouterr().out.splitlines()[2:])}
+    assert rows[("small", "greedy-dist")][2] == "6" and rows[("small", "greedy-dist")][6] == f"{0.75:.4f}"
+    assert rows[("small", "cso")][2] == "6" and rows[("small", "cso")][9].endswith("], 6 won")
+    # Its 95 % interval resamples six plans, not three plans of two episodes each.
+    import numpy as np
+
+    from cso_runtime.comparison import bootstrap_mean_ci
+
+    pooled = tables.pool([("easy", coarse), ("easy", fine)], "greedy-dist")
+    expected = bootstrap_mean_ci(np.array([1.0, 0.5, 1.0, 0.5, 1.0, 0.5]))
+    assert pooled.by_scale[("greedy-dist", "small")]["efficiency_m2_per_step_ci95"] == pytest.approx(list(expected), abs=1e-6)
+
+
+def test_a_summary_json_that_does_not_read_is_one_line_naming_it_not_a_traceback(tmp_path, capsys):
+    """An episodes.csv cut short was one line naming it; a summary.json cut short (or of another shape) was a
+    JSONDecodeError traceback, after the table's header had been printed."""
+    cut = tmp_path / "summary.json"
+    cut.write_text('{"methods": {"greedy-dist": {"by_sc')
+    tables = load_tables()
+    with pytest.raises(SystemExit) as ended:
+        tables.main([str(cut)])
+    said = capsys.readouterr()
+    assert ended.value.code == 2 and f"{cut}: not a summary.json eval wrote (JSONDecodeError" in said.err and said.out == "", said
+    cut.write_text('{"methods": []}')
+    with pytest.raises(SystemExit):
+        tables.main([str(cut)])
+    assert f"{cut}: not a summary.json eval wrote (AttributeError" in capsys.readouterr().err
