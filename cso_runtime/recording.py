@@ -507,7 +507,7 @@ def recording_contents(path: Path) -> tuple[list[str], int | None]:
     try:
         with Path(path).open("rb") as fh:
             summary = make_reader(fh, validate_crcs=True).get_summary()
-    except (McapError, OSError, ValueError):
+    except (McapError, OSError, ValueError, EOFError, struct.error):  # a file cut in its summary: a short footer read
         summary = None
     if summary is not None and summary.statistics is not None:
         counts = summary.statistics.channel_message_counts

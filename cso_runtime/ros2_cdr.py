@@ -153,8 +153,9 @@ class ScanConversion:
 def laserscan_from_cdr(raw: bytes) -> ScanConversion:
     """sensor_msgs/LaserScan CDR -> our LaserScan, honouring the header's angles and limits.
 
-    NaN (invalid) and 0 m (what some drivers send for no reading) become 0 m, which the mapper and the planner
-    ignore (even with ``range_min`` 0). Too close (REP-117: -inf, or a reading below ``range_min``) is something
+    NaN (invalid), 0 m (what some drivers send for no reading) and a finite negative reading (no distance: kept, it
+    made our ``ScanMsg`` refuse the whole scan) become 0 m, which the mapper and the planner ignore (even with
+    ``range_min`` 0); NaN and negative readings are counted ``invalid_beams``. Too close (REP-117: -inf, or a reading below ``range_min``) is something
     there: a reading below ``range_min`` is kept, and -inf becomes the float just below ``range_min``; the mapper
     ignores both, and the planner's stop check counts them (with ``range_min`` 0 there is no such float: 0 m).
     +inf, ``range_max`` itself (how many drivers, the LIMO's among them, report "nothing") and anything beyond become
@@ -169,7 +170,7 @@ def laserscan_from_cdr(raw: bytes) -> ScanConversion:
     expected = int(round(span / msg.angle_increment)) + 1 if math.isfinite(span) else ranges.size
     if abs(expected - ranges.size) > 1:
         raise CdrError(f"LaserScan has {ranges.size} ranges but its angles imply {expected}")
-    invalid = np.isnan(ranges)
+    invalid = np.isnan(ranges) | (np.isfinite(ranges) & (ranges < 0.0))
     too_close = ~invalid & (ranges < msg.range_min)
     no_return = no_return_mask(ranges, msg.range_max)
     nearer_than_range_min_m = float(np.nextafter(np.float32(msg.range_min), np.float32(0.0)))  # 0 when range_min is 0

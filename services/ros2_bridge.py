@@ -292,6 +292,17 @@ class OdometryBuffer:
             return "jump"
         return ""
 
+    def strain(self, sample: ros2_cdr.OdometrySample, after: ros2_cdr.OdometrySample) -> float:
+        """How much of what the robot can do since ``after`` ``sample`` takes: the distance moved and the angle turned,
+        each over its ``discontinuity`` limit, the larger (above 1: a jump; inf when not newer). Which of two samples
+        ``sample`` more plausibly goes on from is the one it strains less."""
+        dt = sample.stamp_s - after.stamp_s
+        if dt <= 0:
+            return math.inf
+        moved = math.hypot(sample.pose.x_m - after.pose.x_m, sample.pose.y_m - after.pose.y_m)
+        turned = abs(wrap_angle_rad(sample.pose.yaw_rad - after.pose.yaw_rad))
+        return max(moved / (self.jump_m + 2 * self.max_speed_mps * dt), turned / (self.jump_rad + 2 * self.max_turn_radps * dt))
+
     def reset(self, samples: list[ros2_cdr.OdometrySample]) -> None:
         """Forget every sample and start again from ``samples`` (in time order)."""
         self.samples.clear()
@@ -622,8 +633,16 @@ class Ros2BridgeService(Service):
         if why == "out_of_order":
             self.count_reject("ros_odom:out_of_order", f"odometry at {odom.stamp_s:.3f} s is not newer than {self.odometry.newest_s:.3f} s")
             return False
-        if why == "jump" or (self.jumped and not self.odometry.discontinuity(odom, self.jumped[-1])):
-            if self.jumped and not self.odometry.discontinuity(odom, self.jumped[-1]):
+        # Odometry that could go on from both the jump and the samples before it (a glitch just after a good sample,
+        # then good samples again; or a reset whose samples the old ones' growing reach takes in) goes on from the one
+        # it strains less: taken as the jump's, a good sample kept every later one dropped, and started a new episode.
+        continues_jump = (
+            bool(self.jumped)
+            and not self.odometry.discontinuity(odom, self.jumped[-1])
+            and (why == "jump" or self.odometry.strain(odom, self.jumped[-1]) < self.odometry.strain(odom, self.odometry.samples[-1]))
+        )
+        if why == "jump" or continues_jump:
+            if continues_jump:
                 self.jumped.append(odom)  # goes on from the jump
             else:
                 self.jumped = [odom]

@@ -397,6 +397,22 @@ def test_a_recording_whose_recorder_was_killed_is_read_up_to_where_it_stops(tmp_
     assert 0 < len(head) < len(scans) and [m.payload for m in head] == [m.payload for m in scans[: len(head)]]
 
 
+def test_a_recording_cut_inside_its_summary_is_read_through_not_a_traceback(tmp_path: Path):
+    """A recorder killed while it wrote the summary (or a copy cut short) leaves every chunk but a partial summary:
+    the seeking reader then reads a short footer (struct.error, not an McapError). ``recording_contents`` (which
+    export-bag, replay and animate ask first) reads such a file through, as one without a summary, at every cut."""
+    from cso_runtime.recording import recording_contents
+
+    scans, whole = _written_scans(tmp_path / "whole.mcap", 20)
+    data = whole.read_bytes()
+    summary_start = int.from_bytes(data[-len(MCAP_MAGIC) - 29 : -len(MCAP_MAGIC)][9:17], "little")
+    cut = tmp_path / "cut.mcap"
+    for end in range(summary_start, len(data)):
+        cut.write_bytes(data[:end])
+        keys, _total = recording_contents(cut)
+        assert keys == [scans[0].key], end
+
+
 def test_a_recording_changed_after_it_was_written_is_refused_not_read_wrong(tmp_path: Path):
     """A flipped byte inside a chunk can decompress into a different payload with no error at all: the chunk CRCs
     the writer stores are checked, so such a file is refused (by ``read_recording`` and the summary reader) rather

@@ -362,6 +362,23 @@ def test_odometry_that_jumps_is_dropped_and_a_lasting_jump_starts_a_new_episode(
     assert svc.path_length_m == pytest.approx(0.22 - new[0].pose.x_m)
 
 
+def test_a_glitch_that_good_odometry_could_go_on_from_too_drops_one_sample_not_a_second_and_the_map():
+    """A glitch 10 ms after a good sample, and the next good sample within the robot's reach of both: that sample went
+    on from the glitch (the jump was checked first), and so did every later one: a second of odometry dropped, its
+    scans unmatched, and a new episode (a new map) though odometry never reset. Good odometry goes on from the
+    samples it strains less (``OdometryBuffer.strain``): the glitch alone is dropped."""
+    svc, _out, step = _bridge_without_zenoh({"odom_jump_confirm_s": 1.0})
+    for i in range(5):
+        step(1000.0 + 0.1 * i, 5.0 + 0.05 * i)  # 0.5 m/s; the robot's top speed is 1 m/s
+    first = svc.episode
+    step(1000.41, 5.75)  # 0.55 m in 10 ms: a glitch
+    for i in range(15):
+        step(1000.5 + 0.1 * i, 5.25 + 0.05 * i)  # driving on as before
+    assert svc.episode == first and svc.counters["odometry_resets"] == 0
+    assert svc.rejected == {"ros_odom:jump": 1}
+    assert svc.step == 5 + 1 + 15 - 1 and svc.path_length_m == pytest.approx(0.05 * 19)
+
+
 def test_a_frame_that_tf2_refuses_is_a_config_error_and_odometry_in_another_frame_is_warned_of(caplog):
     """``map_frame_id: /odom`` (a ROS 1 habit) was taken as it is: every map, goal and frontiers went out in a frame
     that tf2 in ROS 2 refuses ("frame_ids cannot start with a '/'"), and RViz showed nothing. And odometry in another

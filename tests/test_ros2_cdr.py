@@ -99,6 +99,18 @@ def test_invalid_beams_of_a_scan_with_range_min_zero_mark_nothing_on_the_map():
     assert tuple(hits[0]) == (int(hy), int(hx))
 
 
+def test_a_negative_reading_is_one_invalid_beam_not_a_scan_the_bridge_drops():
+    """A finite negative range (a driver's "no reading", or garbage) was kept as "below range_min": our ScanMsg
+    refuses negative ranges, so the ROS 2 bridge dropped the whole scan (``ros_scan:invalid``) for one such beam.
+    It is invalid, 0 m (no reading), counted with the NaNs; the scan's other beams go on to the mapper."""
+    from cso_runtime.messages import ScanMsg, decode, encode
+
+    conv = cdr.laserscan_from_cdr(limo_scan_bytes([2.0, -1.0, 0.05, np.nan], angle_min=-0.3, angle_max=0.3, range_min=0.1))
+    assert conv.scan.ranges_m[0] == pytest.approx(2.0) and conv.scan.ranges_m[1] == 0.0 and conv.scan.ranges_m[3] == 0.0
+    assert (conv.invalid_beams, conv.too_close_beams) == (2, 1)
+    decode(encode(ScanMsg(0, conv.scan, Pose2D(0.0, 0.0, 0.0))), ScanMsg)  # what the bridge checks before it publishes
+
+
 @pytest.mark.parametrize(
     ("angle_min", "angle_max", "why"),
     [(-0.5, 0.5, "7 ranges but its angles imply 3"), (0.5, 0.5, "a zero increment")],
