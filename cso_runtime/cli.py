@@ -670,13 +670,13 @@ def _count_progress(label: str, unit: str = "messages") -> Iterator[Callable[[in
     from rich.console import Console  # noqa: PLC0415
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
-    from cso_runtime.live_view import writes_to_a_terminal  # noqa: PLC0415
+    from cso_runtime.live_view import redraws_in_place  # noqa: PLC0415
 
     console = Console(stderr=True)
     # A terminal is the output's own isatty(): under FORCE_COLOR rich takes a file for one, and the bar's redraws
     # (cursor moves, line erases) landed in the log.
     with Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn(unit), TimeElapsedColumn(),
-                  console=console, disable=not writes_to_a_terminal(console), transient=True) as bar:
+                  console=console, disable=not redraws_in_place(console), transient=True) as bar:
         task = bar.add_task("", total=None)
         yield lambda done, total: bar.update(task, completed=done, total=total)
 
@@ -1632,9 +1632,12 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
             def takes(texts: dict[str, object]) -> object:  # the configuration with those values as text (no hint again)
                 taken = from_dict(Args, {**data, **texts}, where)
                 # Taken by the check too (`--set generated=1` suggested generated='1', no scene spec; `init_from=1`, no
-                # file), unless what the check refuses is not theirs: the configuration without those --set has it too.
+                # file), unless what the check refuses is not theirs: the configuration without those values has it too.
+                # Only the values the hint writes as text are left out: another --set refused by the check (`--set
+                # init_from=gone.pt` beside `--set out_dir=2024`) is refused either way, and the hint is said first.
                 if (refused := refusal({**data, **texts})) is not None:
-                    without = {k: v for k, v in data.items() if k not in texts} | {k: unset[k] for k in texts if k in unset}
+                    hinted = {k for k, v in texts.items() if v != pairs.get(k)}
+                    without = {k: v for k, v in data.items() if k not in hinted} | {k: unset[k] for k in hinted if k in unset}
                     if refused != refusal(without):
                         raise ConfigError(refused)
                 return taken

@@ -1509,10 +1509,10 @@ class RichProgress:
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
-        from cso_runtime.live_view import console_that_survives_its_reader, progress_with_stats_below, writes_to_a_terminal  # noqa: PLC0415
+        from cso_runtime.live_view import console_that_survives_its_reader, progress_with_stats_below, redraws_in_place  # noqa: PLC0415
 
         console = console_that_survives_its_reader(stderr=True, tell=False)  # `eval ... | head`: the episodes go on
-        self.on_terminal = writes_to_a_terminal(console)
+        self.on_terminal = redraws_in_place(console)
         """A bar redrawn in place on a terminal; else (a log, CI, a pipe: the output's own ``isatty()``, not rich's
         ``is_terminal``, which ``FORCE_COLOR`` makes true there) one plain line per episode, no cursor control."""
         # The last episode's result, then what is being written, on a line under the bar (the task's ``stats``): after

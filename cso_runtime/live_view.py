@@ -124,6 +124,16 @@ def writes_to_a_terminal(console: Console) -> bool:
         return False
 
 
+def redraws_in_place(console: Console) -> bool:
+    """Whether a display that redraws itself (``eval``'s and ``train``'s bars, ``status --watch``, ``up``'s live view,
+    the count bars) is drawn in place on ``console``: it writes to a terminal (``writes_to_a_terminal``) that rich draws
+    in place on. Not a dumb one (``TERM=dumb``: Emacs' shell, some IDE consoles) nor one rich is told is no terminal
+    (``TTY_COMPATIBLE=0``, ``FORCE_COLOR`` empty): there rich draws a live display only once, at its end, so a bar kept
+    for such a terminal showed nothing for a whole run (a training of hours), and none of the lines a log gets
+    either. Those get the log's lines; the layout of a table stays a terminal's (``fit_off_a_terminal``)."""
+    return writes_to_a_terminal(console) and console.is_terminal and not console.is_dumb_terminal
+
+
 def fit_off_a_terminal(console: Console, *tables: Any) -> Console:
     """``console`` (returned, for ``fit_off_a_terminal(console, table).print(table)``), made wide enough off a terminal
     (a file, a pipe, CI) for ``tables`` to be written with no cell folded or wrapped, nor a title: at least
@@ -183,9 +193,9 @@ class LiveView:
         self.launcher = launcher
         self.console = console  # None: rich's console on stdout
         self._live: Live | None = None
-        """Rich's live display, on a terminal only (``writes_to_a_terminal``), from ``start`` on."""
+        """Rich's live display, on a terminal only (``redraws_in_place``), from ``start`` on."""
         self._in_a_file: Console | None = None
-        """Off a terminal (a file, a pipe, CI; under ``FORCE_COLOR`` too), the console the last table is written to
+        """Off a terminal (a file, a pipe, CI; under ``FORCE_COLOR`` too; a dumb terminal), the console the last table is written to
         once, by ``stop``: no live display there, whose redraws (cursor moves, line erases) landed in the file."""
         self._last = 0.0
         self._rerouted: list[tuple[logging.StreamHandler, Any]] = []
@@ -273,7 +283,7 @@ class LiveView:
 
         stderr = sys.stderr
         console = self.console if self.console is not None else console_that_survives_its_reader()
-        if not writes_to_a_terminal(console):  # not rich's is_terminal, which FORCE_COLOR=1 (CI) makes true for a file
+        if not redraws_in_place(console):  # not rich's is_terminal, which FORCE_COLOR=1 (CI) makes true for a file
             self._in_a_file = console
             return
         self._live = Live(self.render(), console=console, refresh_per_second=4, transient=False)

@@ -755,7 +755,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     ``console``: rich's console on stdout when None."""
     from rich.live import Live  # noqa: PLC0415
 
-    from cso_runtime.live_view import console_that_survives_its_reader, fit_off_a_terminal, writes_to_a_terminal  # noqa: PLC0415
+    from cso_runtime.live_view import console_that_survives_its_reader, fit_off_a_terminal, redraws_in_place  # noqa: PLC0415
     from cso_runtime.run_profile import runs_a_real_robot  # noqa: PLC0415 - a status has a profile's services
 
     console = console if console is not None else console_that_survives_its_reader()  # `status --watch | head`: ends
@@ -774,7 +774,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     assert robot is not None  # reachable_target always names the robot
     # A new table a period scrolled the terminal: ~20 lines a second, each as wide as its longest cell. A terminal is the
     # output's own isatty() (FORCE_COLOR=1 in CI makes rich's is_terminal true for a file: its redraws went there).
-    in_place = watch and not as_json and writes_to_a_terminal(console)
+    in_place = watch and not as_json and redraws_in_place(console)
     live: Live | None = None
     next_s = time.monotonic()
     watched: tuple[Path, dict[str, Any]] | None = None  # the run that answered (its folder) and its last fresh status

@@ -898,3 +898,23 @@ def test_a_train_set_hint_suggests_only_a_value_the_training_check_takes(tmp_pat
     said = " ".join(r.output.split())
     assert r.exit_code == 2 and "--set out_dir=2024 is read as a number, and out_dir is text: write --set out_dir='2024'" in said, said
     assert len(train_runs) == 1
+
+
+def test_a_train_set_hint_is_said_beside_another_set_the_check_refuses(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
+    """``train --set dungeon_dir=2024 --set init_from=gone.pt``: the hint's configuration (``dungeon_dir='2024'``) was
+    weighed against one without any ``--set``, which has no ``init_from`` to refuse, so the refusal of ``gone.pt`` was
+    taken for the hint's and ``dungeon_dir: expected a string, got 2024`` was said instead of how to write it, as
+    before the hints were checked. Only the values the hint writes as text are left out of that configuration."""
+    import shutil
+
+    from cso_runtime.scenes import builtin_scene_dir
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(builtin_scene_dir(), tmp_path / "2024")  # a folder of plans named for its year
+    code, out = train(tmp_path, "--set", "dungeon_dir=2024", "--set", "init_from=gone.pt")
+    assert code == 2 and "--set dungeon_dir=2024 is read as a number, and dungeon_dir is text: write --set dungeon_dir='2024'" in out, out
+    code, out = train(tmp_path, "--set", "dungeon_dir='2024'", "--set", "init_from=gone.pt")
+    assert code == 2 and "gone.pt: no such file" in out, out  # the hint taken: the other value's own refusal
+    code, out = train(tmp_path, "--set", "generated=1", "--set", "init_from=gone.pt")
+    assert code == 2 and "write --set" not in out, out  # '1' is no scene spec either: no hint that fails in turn
+    assert not train_runs

@@ -3,7 +3,8 @@ or a pipe for a terminal then (its ``is_terminal``), so ``eval``'s bar, ``status
 ``train``'s bar and the count bars (``export-bag``, ``animate``, ``scenes``) were redrawn in the file, cursor moves and line erases included.
 Whether the output is a terminal is ``live_view.writes_to_a_terminal``'s word (the output's own ``isatty()``): off one
 each of them writes plain appended lines, coloured as ``FORCE_COLOR`` asks; on one (``TerminalFile``,
-``TerminalRunner``) they are live as before."""
+``TerminalRunner``) they are live as before, unless rich draws nothing live there (``TERM=dumb``, ``TTY_COMPATIBLE=0``:
+``live_view.redraws_in_place``), which gets a log's lines too."""
 
 from __future__ import annotations
 
@@ -180,3 +181,63 @@ def test_no_code_outside_live_view_asks_rich_whether_it_writes_to_a_terminal():
     ]
     assert not asked, asked
 
+
+
+DUMB_TERMINALS = [
+    pytest.param({"TERM": "dumb", "FORCE_COLOR": None, "TTY_COMPATIBLE": None, "NO_COLOR": None, "COLUMNS": "120"}, id="TERM=dumb"),
+    pytest.param({"TERM": "xterm-256color", "FORCE_COLOR": None, "TTY_COMPATIBLE": "0", "NO_COLOR": None, "COLUMNS": "120"}, id="TTY_COMPATIBLE=0"),
+]
+"""A terminal (its ``isatty()`` true) that rich draws no live display on until its end: a dumb one (Emacs' shell, some
+IDE consoles), or one said to be no terminal (TTY_COMPATIBLE=0)."""
+
+
+@pytest.mark.parametrize("environment", DUMB_TERMINALS)
+def test_a_terminal_rich_draws_nothing_live_on_gets_the_lines_a_log_gets(environment: dict, monkeypatch: pytest.MonkeyPatch, tmp_path: Path):
+    """On a terminal where rich does not redraw (``TERM=dumb``, ``TTY_COMPATIBLE=0``) the bars and live tables, kept
+    for a terminal since its ``isatty()`` is true, showed nothing until their end: ``train`` hours with no line,
+    ``eval`` no episode, ``up`` none of its progress lines (the view taken for a terminal's), ``status --watch`` no table
+    until the run was gone. Each writes the lines it writes in a log (``live_view.redraws_in_place``)."""
+    from rich.console import Console
+
+    from cso_runtime import cli
+    from cso_runtime import status as status_module
+    from cso_runtime.learned import ppo
+    from cso_runtime.live_view import LiveView
+    from cso_runtime.status import status_of
+
+    for name, value in environment.items():
+        if value is None:
+            monkeypatch.delenv(name, raising=False)
+        else:
+            monkeypatch.setenv(name, value)
+
+    terminal = TerminalFile()
+    bar = ppo._Bar(2, console=Console(file=terminal), line_every_s=0.0)
+    bar.advance(stats="return 1.00")
+    bar.advance(stats="return 2.00")
+    bar.close()
+    assert [line for line in plain(terminal.getvalue()) if line.startswith("PPO updates ")][:1] == ["PPO updates 1/2 (0 s, about 0 s left): return 1.00"], repr(terminal.getvalue())
+
+    terminal = TerminalFile()
+    view = LiveView(_launcher(tmp_path), console=Console(file=terminal))
+    view.start()
+    assert not view.on_terminal  # the launcher logs the episode's progress lines
+    view.stop()
+    assert sum("cso-runtime" in line for line in plain(terminal.getvalue())) == 1, repr(terminal.getvalue())
+
+    seen = status_of("r0", None, {"run_id": "x", "state": "running", "services": {}}, {}, set())
+    seen.update(scene="gen_small_0", method="greedy-dist", state="exploring", step=7)
+    answers: list[dict[str, Any] | None] = [dict(seen), dict(seen, step=8), None]
+    monkeypatch.setattr(status_module, "reachable_target", lambda *args, **kwargs: (["tcp/127.0.0.1:7447"], "r0", None))
+    monkeypatch.setattr(status_module, "query_status", lambda *args, **kwargs: answers.pop(0))
+    monkeypatch.setattr(status_module.time, "sleep", lambda s: None)
+    terminal = TerminalFile()
+    code = status_module.status_main(["tcp/127.0.0.1:7447"], "r0", as_json=False, watch=True, runs_dir=tmp_path, period_s=0.1, console=Console(file=terminal))
+    assert code == 1 and not answers
+    assert len([line for line in plain(terminal.getvalue()) if re.search(r"│ step +│", line)]) == 2, repr(terminal.getvalue())  # a table a status
+
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    args = ["eval", "--method", "greedy-dist", "--maps", "generated:small:2:0", "--max-steps", "5", "--out", str(tmp_path / "eval")]
+    r = TerminalRunner().invoke(app, args, env=environment)
+    assert r.exit_code == 0, r.output
+    assert [line.split(" greedy-dist ")[0] for line in plain(r.stderr) if " greedy-dist " in line] == ["[1/2]", "[2/2]"], repr(r.stderr)

@@ -1580,11 +1580,11 @@ class _Bar:
     def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0, completed: int = 0) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
 
-        from cso_runtime.live_view import console_that_survives_its_reader, progress_with_stats_below, writes_to_a_terminal  # noqa: PLC0415
+        from cso_runtime.live_view import console_that_survives_its_reader, progress_with_stats_below, redraws_in_place  # noqa: PLC0415
 
         console = console if console is not None else console_that_survives_its_reader()  # `train | head`: exit 141, as every command
         columns = (TextColumn("{task.description}"), BarColumn(bar_width=24), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn())
-        self._lines = not writes_to_a_terminal(console)  # the output's own isatty(): FORCE_COLOR=1 in CI makes rich's is_terminal true
+        self._lines = not redraws_in_place(console)  # its own isatty() (FORCE_COLOR=1 in CI), not a dumb terminal (TERM=dumb)
         self._p = progress_with_stats_below(*columns, console=console, disable=self._lines)
         self._p.start()
         self._task = self._p.add_task(what, total=total, stats="", completed=completed)
