@@ -330,7 +330,7 @@ class EvalRequest:
 
             for method in learned:
                 try:
-                    check_weights(method, sensor=self.exploration_config().sensor)
+                    check_weights(method, sensor=self.exploration_config().sensor, frontier=self.exploration_config().frontier)
                 except CheckpointError as exc:
                     raise ConfigError(f"method {method}: {exc}") from None
 
@@ -833,7 +833,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
     except SceneError as exc:
         return EpisodeOutcome(job.method, job.scene.name, error=str(exc))
     try:
-        policy = make_policy(job.method, job.config.masks, seed=job.seed, sensor=job.config.sensor)
+        policy = make_policy(job.method, job.config.masks, seed=job.seed, sensor=job.config.sensor, frontier=job.config.frontier)
         warm_up = getattr(policy, "warm_up", None)
         if warm_up is not None:  # the network's one-off trace, outside the decision latencies (as the policy service does)
             warm_up()
@@ -1215,6 +1215,9 @@ def plan_eval(request: EvalRequest, out_checked: bool = True) -> EvalPlan:
         weights = {m: weights_provenance(m, config.sensor) for m in request.methods if m in LEARNED_METHODS}
         warnings += [f"{m} (a policy does best with the sensor it was trained with)" for m in sensor_mismatches(list(weights), config.sensor)]
         warnings += [f"{m} (a policy does best with the masks it was trained under)" for m in mask_mismatches(list(weights), config.masks, config.sensor)]
+        from cso_runtime.learned.registry import check_weights  # noqa: PLC0415 - loaded already: the request's validate checked them
+
+        warnings += [said for m in weights for said in check_weights(m, sensor=config.sensor, frontier=config.frontier)]
     mujoco = request.mujoco_parameters()
     sim_settings = simulator_settings(request.sim, config.sensor, config.robot, mujoco)
     watchdog_key = f"{request.sim_config_path}: watchdog_s" if request.sim_config_path is not None else f"--sim {request.sim}'s default watchdog_s"

@@ -12,7 +12,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from cso_runtime.config import ConfigError, MaskConfig, SensorConfig, import_attribute, with_nearest
+from cso_runtime.config import ConfigError, FrontierConfig, MaskConfig, SensorConfig, import_attribute, with_nearest
 from cso_runtime.masks import StuckMask, valid_distance_mask
 from cso_runtime.observation import Observation
 
@@ -264,10 +264,17 @@ def _learned_available(name: str) -> bool:
 
 
 def make_policy(
-    name: str, mask_config: MaskConfig | None = None, seed: int | None = None, device: str = "cpu", sensor: SensorConfig | None = None
+    name: str,
+    mask_config: MaskConfig | None = None,
+    seed: int | None = None,
+    device: str = "cpu",
+    sensor: SensorConfig | None = None,
+    frontier: FrontierConfig | None = None,
 ) -> GoalSelector:
     """Build a goal selector by name (``greedy-dist``, ``greedy-info``, ``utility``, ``random``, ``cso``...), or a
-    method of the user's own (``module.path:Attribute`` or a registered name: ``own_selector``). A learned method loads the weights trained with ``sensor``'s field of view where they ship."""
+    method of the user's own (``module.path:Attribute`` or a registered name: ``own_selector``). A learned method loads the weights trained with ``sensor``'s field of view where they ship,
+    and refuses (ValueError) a ``frontier`` setting that would feed its network inputs of another scale than it was trained on
+    (``registry.input_mismatches``; None: ``FrontierConfig``'s defaults, what ``ObservationBuilder()`` builds with)."""
     if name in BASELINES or own_method_spec(name):
         policy = BASELINES[name]() if name in BASELINES else own_selector(name)
         policy.reset(seed)
@@ -275,7 +282,7 @@ def make_policy(
     if name in LEARNED_METHODS:
         from cso_runtime.learned import registry  # noqa: PLC0415 - torch only when needed
 
-        return registry.make_learned_policy(name, mask_config or MaskConfig(), seed=seed, device=device, sensor=sensor)
+        return registry.make_learned_policy(name, mask_config or MaskConfig(), seed=seed, device=device, sensor=sensor, frontier=frontier)
     raise ValueError(unknown_methods_said([name]))
 
 

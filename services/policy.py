@@ -129,6 +129,8 @@ class PolicyService(Service):
             from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
 
             log.info("%s: weights %s", self.method, weights_path(self.method, ctx.exploration.sensor))
+        for said in getattr(selector, "input_warnings", ()):  # settings the weights were trained otherwise with, said once
+            log.warning("%s", said)
         self._queryables: list = []
         self._tokens: dict[str, zenoh.LivelinessToken] = {}
         """Robot -> the liveliness token under its keys (the robots served besides ``--robot``)."""
@@ -149,7 +151,9 @@ class PolicyService(Service):
 
     def new_selector(self) -> GoalSelector:
         try:
-            return make_policy(self.method, self.ctx.exploration.masks, seed=self.seed, device=self.params.device, sensor=self.ctx.exploration.sensor)
+            return make_policy(
+                self.method, self.ctx.exploration.masks, seed=self.seed, device=self.params.device, sensor=self.ctx.exploration.sensor, frontier=self.ctx.exploration.frontier
+            )
         except (ValueError, FileNotFoundError) as exc:  # an unknown method, or a learned one without weights
             raise ConfigError(str(exc)) from None
 

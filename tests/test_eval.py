@@ -1019,8 +1019,8 @@ def test_eval_warms_a_learned_policy_up_before_its_first_decision(tmp_path: Path
 
     calls = []
 
-    def recording_policy(method, masks, seed=0, sensor=None):
-        policy = make_policy(method, masks, seed=seed, sensor=sensor)
+    def recording_policy(method, masks, seed=0, sensor=None, frontier=None):
+        policy = make_policy(method, masks, seed=seed, sensor=sensor, frontier=frontier)
         warm_up, select = policy.warm_up, policy.select
         policy.warm_up = lambda: (calls.append("warm_up"), warm_up())[1]
         policy.select = lambda obs: (calls.append("select"), select(obs))[1]
@@ -2888,3 +2888,26 @@ def test_an_eval_that_ended_in_the_folder_after_the_plan_was_checked_is_refused_
     with pytest.raises(ConfigError, match="episode.max_steps: 12 there, 10 here"):
         run_eval(req, plan=plan)
     assert json.loads((tmp_path / "summary.json").read_text())["meta"]["config"]["episode"]["max_steps"] == 12 == other["meta"]["config"]["episode"]["max_steps"]
+
+
+def test_eval_refuses_an_entropy_window_its_learned_weights_were_not_trained_with(tmp_path, monkeypatch, caplog):
+    """``eval --method cso --set frontier.entropy_window_m=4`` ran the weights trained with 2 m, their entropy input
+    doubled, without a word. It is now refused before any episode, naming the parameter, both values and the ``--set``
+    that matches; an episode job of that configuration (eval's in-process path, a worker's) fails naming it too, rather
+    than run. The window the weights were trained with runs; another ``frontier.min_cluster_size_m`` runs, warned of."""
+    from cso_runtime.learned.weights import weights_path
+
+    unset_weights_env(monkeypatch)
+    said = f"the weights of cso ({weights_path('cso', SensorConfig())}) were trained with frontier.entropy_window_m 2 m, this run's is 4 m"
+    wider = {"frontier.entropy_window_m": 4.0}
+    with pytest.raises(ConfigError, match="^" + re.escape(f"method cso: {said}") + r".*--set frontier.entropy_window_m=2 "):
+        run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "o", max_steps=5, settings=wider))
+    assert not (tmp_path / "o" / "summary.json").exists()
+    config = EvalRequest(methods=["cso"], maps="builtin", out_dir=tmp_path / "o", settings=wider).exploration_config()
+    outcome = run_job(EpisodeJob("cso", resolve_scenes("generated:small:1:0")[0], 0, "2d", config, tmp_path / "job"))
+    assert outcome.row is None and outcome.error is not None and said in outcome.error
+    run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "same", max_steps=5, settings={"frontier.entropy_window_m": 2.0}))
+    with caplog.at_level("WARNING"):
+        run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "short", max_steps=5, settings={"frontier.min_cluster_size_m": 0.5}))
+    assert "were trained with frontier.min_cluster_size_m 0.3 m, this run's is 0.5 m" in caplog.text
+    assert json.loads((tmp_path / "short" / "summary.json").read_text())["methods"]["cso"]["episodes"] == 1

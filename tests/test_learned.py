@@ -2978,3 +2978,89 @@ def test_a_resume_refuses_the_runs_own_init_from_text_where_it_names_other_weigh
     (run / "latest").symlink_to(run / "z")  # the link names another run's weights now
     refused = problem("latest/cso.pt", run)
     assert refused is not None and f"here latest/cso.pt is {run / 'z' / 'cso.pt'}" in refused, refused
+
+
+def test_a_run_whose_entropy_window_scales_the_networks_input_otherwise_is_refused_naming_the_setting(tmp_path, monkeypatch):
+    """``eval --method cso --set frontier.entropy_window_m=4`` ran the shipped weights (trained with 2 m) without a word:
+    the frontier service counts I over the run's window and the graph divides it by the trained one, so the network's
+    entropy input doubled. Every load now compares the run's frontier settings with the weights' training: the window
+    is refused, naming the parameter, both values and the ``--set`` that matches them; the variants that do not read I
+    take any window; a matching window loads."""
+    from cso_runtime.config import FrontierConfig
+    from cso_runtime.learned.registry import CheckpointError, check_weights
+
+    unset_weights_env(monkeypatch)
+    wider = FrontierConfig(entropy_window_m=4.0)
+    path = weights_path("cso", SensorConfig())
+    said = (
+        f"the weights of cso ({path}) were trained with frontier.entropy_window_m 2 m, this run's is 4 m: the network's entropy"
+        " input would be about 2 times what it learned on; run with --set frontier.entropy_window_m=2"
+        " (up: --set exploration.frontier.entropy_window_m=2), or with weights trained with a 4 m window"
+        " (cso-runtime train --config configs/train.yaml --set entropy_window_m=4)"
+    )
+    with pytest.raises(CheckpointError) as refused:
+        check_weights("cso", sensor=SensorConfig(), frontier=wider)
+    assert str(refused.value) == said
+    with pytest.raises(ValueError, match=re.escape(said)):  # make_policy: eval's episodes, the policy service
+        make_policy("cso", MaskConfig(), seed=0, sensor=SensorConfig(), frontier=wider)
+    assert check_weights("cso", sensor=SensorConfig(), frontier=FrontierConfig()) == []
+    assert make_policy("cso", MaskConfig(), seed=0, sensor=SensorConfig()).input_warnings == []  # None: the defaults
+    for blind in ("cso-no-info", "gnn-baseline"):  # no entropy input: the window changes nothing they read
+        assert make_policy(blind, MaskConfig(), seed=0, frontier=wider).input_warnings == []
+
+
+def test_a_shorter_minimum_cluster_is_warned_of_not_refused(tmp_path, monkeypatch):
+    """``frontier.min_cluster_size_m`` decides which clusters become the network's actions, not what a node's inputs
+    mean: another value than the weights were trained with loads, with one warning naming it and both values."""
+    from cso_runtime.config import FrontierConfig
+
+    unset_weights_env(monkeypatch)
+    path = weights_path("cso-sm")
+    policy = make_policy("cso-sm", MaskConfig(), seed=0, frontier=FrontierConfig(min_cluster_size_m=0.5))
+    said = (
+        f"the weights of cso-sm ({path}) were trained with frontier.min_cluster_size_m 0.3 m, this run's is 0.5 m: its candidate"
+        " goals would be other frontier clusters than it learned to choose among; --set frontier.min_cluster_size_m=0.3"
+        " (up: --set exploration.frontier.min_cluster_size_m=0.3) runs them as trained"
+    )
+    assert policy.input_warnings == [said]
+
+
+def test_checkpoints_record_their_frontier_settings_and_older_ones_load_as_trained_with_the_recipes(tmp_path, monkeypatch):
+    """``train`` writes the frontier settings of its episodes into the weights (``frontier``), which a load compares
+    with the run's. The shipped files predate the record and are left as they are (their SHA-256 is in every table's
+    ``meta.weights``): they load, read as trained with the recipe's 0.3 m and their graph's 2 m window; an older file
+    whose graph says another window is read as trained with that one."""
+    from cso_runtime.config import FrontierConfig
+    from cso_runtime.learned.ppo import matching_eval_command, save_weights
+    from cso_runtime.learned.registry import TRAINED_FRONTIER_BEFORE_RECORD, CheckpointError, check_weights, trained_frontier
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+
+    unset_weights_env(monkeypatch)
+    assert TRAINED_FRONTIER_BEFORE_RECORD == FrontierConfig()  # the defaults train has always built its episodes with
+    for shipped in sorted(weights_path("cso").parent.glob("*.pt")):
+        ckpt = torch.load(shipped, weights_only=True)
+        assert "frontier" not in ckpt
+        assert trained_frontier(ckpt, GraphConfig(**ckpt["graph"])) == FrontierConfig(min_cluster_size_m=0.3, entropy_window_m=2.0)
+    args = Args(variant="cso")
+    save_weights(tmp_path / "run", build_model(args, torch.device("cpu")), args, {"ppo_decisions": 0})
+    assert torch.load(tmp_path / "run" / "cso.pt", weights_only=True)["frontier"] == dataclasses.asdict(FrontierConfig())
+    wide = Args(variant="cso", entropy_window_m=4.0, out_dir=str(tmp_path / "wide"))  # train --set entropy_window_m=4
+    save_weights(tmp_path / "wide", build_model(wide, torch.device("cpu")), wide, {"ppo_decisions": 0})
+    ckpt = torch.load(tmp_path / "wide" / "cso.pt", weights_only=True)
+    assert ckpt["frontier"]["entropy_window_m"] == ckpt["graph"]["entropy_window_m"] == 4.0
+    assert matching_eval_command(wide).endswith("--set frontier.entropy_window_m=4")
+    assert "entropy_window_m" not in matching_eval_command(args)
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(tmp_path / "wide"))
+    assert check_weights("cso", frontier=FrontierConfig(entropy_window_m=4.0)) == []
+    with pytest.raises(CheckpointError, match=r"trained with frontier.entropy_window_m 4 m, this run's is 2 m"):
+        check_weights("cso")
+    old = tmp_path / "old"
+    old.mkdir()
+    save_checkpoint(old / "cso.pt", GraphActorCritic().eval(), GraphConfig(entropy_window_m=4.0), "cso")
+    ckpt = torch.load(old / "cso.pt", weights_only=True)
+    del ckpt["frontier"]  # as written before the record
+    torch.save(ckpt, old / "cso.pt")
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(old))
+    assert check_weights("cso", frontier=FrontierConfig(entropy_window_m=4.0)) == []
+    with pytest.raises(CheckpointError, match=r"trained with frontier.entropy_window_m 4 m, this run's is 2 m"):
+        check_weights("cso", frontier=FrontierConfig())

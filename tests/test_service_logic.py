@@ -2777,3 +2777,24 @@ def test_a_service_ends_its_process_once_stopped_without_the_interpreters_teardo
     assert code == 0 and lines[-1].endswith("INFO cso.service: idle: stopped"), lines[-5:]
     assert (tmp_path / "atexit").read_text() == "ran"
     assert (tmp_path / "trace" / "idle.trace.json").exists() and (tmp_path / "prof" / "idle.prof").exists()
+
+
+def test_policy_service_refuses_an_entropy_window_its_weights_were_not_trained_with(monkeypatch, caplog):
+    """A profile's ``exploration.frontier.entropy_window_m`` of 4 m served the weights trained with 2 m their entropy
+    input doubled. The policy service now refuses at its start (exit 2), naming the parameter, both values and the
+    ``--set`` that matches, as eval does (the same check: ``registry.input_mismatches``); the trained window loads, and
+    another ``min_cluster_size_m`` loads with one warning in the service's log."""
+    from cso_runtime.config import ConfigError, FrontierConfig
+    from cso_runtime.learned.weights import weights_path
+    from tests.conftest import unset_weights_env
+
+    unset_weights_env(monkeypatch)
+    path = weights_path("cso", SensorConfig())
+    wider = ExplorationConfig(frontier=FrontierConfig(entropy_window_m=4.0))
+    with pytest.raises(ConfigError, match="^" + re.escape(f"the weights of cso ({path}) were trained with frontier.entropy_window_m 2 m, this run's is 4 m")):
+        _service(PolicyService, lockstep=True, params={"method": "cso"}, exploration=wider)
+    policy, _ = _service(PolicyService, lockstep=True, params={"method": "cso"}, exploration=ExplorationConfig(frontier=FrontierConfig(entropy_window_m=2.0)))
+    assert policy.method == "cso"
+    with caplog.at_level("WARNING"):
+        _service(PolicyService, lockstep=True, params={"method": "cso"}, exploration=ExplorationConfig(frontier=FrontierConfig(min_cluster_size_m=0.5)))
+    assert f"the weights of cso ({path}) were trained with frontier.min_cluster_size_m 0.3 m, this run's is 0.5 m" in caplog.text

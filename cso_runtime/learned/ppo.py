@@ -42,11 +42,13 @@ from cso_runtime.config import (
     Bound,
     ConfigError,
     ExplorationConfig,
+    FrontierConfig,
     MaskConfig,
     SensorConfig,
     check_bounds,
     check_seed,
     check_torch_device,
+    frontier_bounds,
     map_length,
 )
 from cso_runtime.current_run import folder_lock
@@ -141,6 +143,7 @@ ARGS_BOUNDS: dict[str, Bound] = {
     "max_frontier_nodes": Bound(1, MAX_GRAPH_NODES, why="MAX_GRAPH_NODES"),
     "max_path_nodes": Bound(1, MAX_GRAPH_NODES, why="MAX_GRAPH_NODES"),
     "distance_scale_m": map_length(low_open=True),
+    "entropy_window_m": frontier_bounds()["entropy_window_m"],
     "distance_prior": Bound(0.0, MAX_LOSS_WEIGHT, why="0 = the paper's actor; MAX_LOSS_WEIGHT"),
     "checkpoint_every": Bound(1, MAX_CHECKPOINT_EVERY, why="MAX_CHECKPOINT_EVERY"),
     "torch_threads": Bound(1, MAX_ENVS, why="MAX_ENVS"),
@@ -290,6 +293,10 @@ class Args:
     """Edges between non-robot nodes as max(Euclidean, |l_i - l_j|) (``GraphConfig.geodesic_edge_bound``)."""
     distance_scale_m: float = 10.0
     """Positions and distances of the graph are divided by this (``GraphConfig.distance_scale_m``)."""
+    entropy_window_m: float = 2.0
+    """gamma of Eq. 4 in the training episodes (``frontier.entropy_window_m``) and the graph's entropy input
+    (``GraphConfig.entropy_window_m``). The weights record it, and a run of another window refuses them
+    (``registry.input_mismatches``): evaluate weights trained with 4 m with ``--set frontier.entropy_window_m=4``."""
     edge_messages: bool = False
     """Edge features also enter the attention's keys and messages (``NetworkConfig.edge_messages``)."""
     distance_prior: float = 0.0
@@ -376,6 +383,7 @@ class Args:
         v = VARIANTS[self.variant]
         exploration = ExplorationConfig()
         exploration.sensor = SensorConfig.preset(self.sensor, self.lidar_fov_deg)
+        exploration.frontier = dataclasses.replace(exploration.frontier, entropy_window_m=self.entropy_window_m)
         exploration.masks = mask_config_for(v.use_valid_distance, v.use_stuck, self.training_masks(exploration.masks))
         graph = GraphConfig(
             self.max_frontier_nodes,
@@ -688,7 +696,8 @@ def save_weights(folder: Path, model: GraphActorCritic, args: Args, record: dict
     with the run's ``args``: ``eval`` reads the sensor and masks it was trained with): a folder ``eval --weights``
     serves, the run's own or a kept checkpoint's."""
     folder.mkdir(parents=True, exist_ok=True)
-    save_checkpoint(folder / f"{args.variant}.pt", model, args.env_config().graph, args.variant, {"stage": "ppo", "decisions": record["ppo_decisions"]})
+    env = args.env_config()
+    save_checkpoint(folder / f"{args.variant}.pt", model, env.graph, args.variant, {"stage": "ppo", "decisions": record["ppo_decisions"]}, env.exploration.frontier)
     write_text_atomic(folder / f"{args.variant}.json", json.dumps(record, indent=2, default=str))  # eval --weights reads it
 
 
@@ -1253,7 +1262,8 @@ def _train_on(
         warm_decisions = len(data)
         record["warm_start"] = warm_start(model, data, args, device, log, stop_requested)
         record["warm_start"]["decisions"] = warm_decisions
-        save_checkpoint(out / f"{args.variant}_warm.pt", model, args.env_config().graph, args.variant, {"stage": "warm_start"})
+        env = args.env_config()
+        save_checkpoint(out / f"{args.variant}_warm.pt", model, env.graph, args.variant, {"stage": "warm_start"}, env.exploration.frontier)
 
     tensorboard = open_tensorboard(out / "tensorboard", global_decisions if args.resume else None) if args.tensorboard else None
 
@@ -1454,15 +1464,17 @@ def _train_on(
 
 def matching_eval_command(args: Args) -> str:
     """The ``eval`` that runs a finished run's weights as they were trained: its variant, its sensor (``eval`` runs the
-    LIMO's 180-degree LiDAR unless told; ``configs/train.yaml`` trains with 360 degrees) and its stuck mask's settings
+    LIMO's 180-degree LiDAR unless told; ``configs/train.yaml`` trains with 360 degrees), its stuck mask's settings
     where they are not ``eval``'s and its variant's masks use them (``weights.trained_mask_settings``, which ``eval``
-    warns of). The valid distance mask's far bound stays ``eval``'s 1.5 m, as for the shipped weights (trained under 2 m)."""
+    warns of), and its entropy window where it is not ``eval``'s and its variant reads I (``eval`` refuses another). The valid distance mask's far bound stays ``eval``'s 1.5 m, as for the shipped weights (trained under 2 m)."""
     words = ["cso-runtime", "eval", "--method", args.variant, "--weights", args.out_dir]
     if args.sensor != "lidar":
         words += ["--sensor", args.sensor]
     elif SensorConfig.preset(args.sensor, args.lidar_fov_deg).fov_deg == 360:  # eval's other LiDAR (Args takes no other angle)
         words += ["--lidar-fov", "360"]
     words += mask_set_flags(mask_settings_changed(trained_mask_settings(dataclasses.asdict(args)), MaskConfig()))
+    if VARIANTS[args.variant].use_entropy and args.entropy_window_m != FrontierConfig().entropy_window_m:  # eval refuses another
+        words += ["--set", f"frontier.entropy_window_m={args.entropy_window_m:g}"]
     return shlex.join(words)
 
 

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from cso_runtime.config import MaskConfig, SensorConfig
+from cso_runtime.config import FrontierConfig, MaskConfig, SensorConfig
 from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph, frontier_count
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_file_refusal, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
@@ -31,29 +31,39 @@ _DECISION_TRACES: weakref.WeakKeyDictionary[GraphActorCritic, dict[tuple, Any]] 
 
 
 @functools.cache
-def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig, str | None]:
-    """The weights at ``path`` and the variant they were trained as, loaded once per process (eval builds
-    a policy per episode)."""
+def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig, str | None, FrontierConfig]:
+    """The weights at ``path``, the variant they were trained as and the frontier settings of their training episodes
+    (``trained_frontier``), loaded once per process (eval builds a policy per episode)."""
     model, graph, ckpt = load_checkpoint(path, device)
     variant = ckpt.get("variant")
-    return model, graph, variant if isinstance(variant, str) else None
+    return model, graph, variant if isinstance(variant, str) else None, trained_frontier(ckpt, graph)
 
 
-def _model_for(name: str, device: str, sensor: SensorConfig | None) -> tuple[GraphActorCritic, GraphConfig]:
-    """``name``'s network and graph; CheckpointError when its file holds another variant's weights (a
-    ``--weights`` folder whose ``cso.pt`` came from ``train --variant gnn-baseline``)."""
+def _model_for(name: str, device: str, sensor: SensorConfig | None, frontier: FrontierConfig | None) -> tuple[GraphActorCritic, GraphConfig, list[str]]:
+    """``name``'s network and graph, and the warnings of ``input_mismatches`` (the run's ``frontier`` settings against
+    those the weights were trained with; None: ``FrontierConfig``'s defaults, what ``ObservationBuilder()`` uses).
+    Every loader of a method's weights comes here (``check_weights``, ``make_learned_policy``: eval, its workers, the
+    policy service, ``doctor``). CheckpointError when the file holds another variant's weights (a ``--weights``
+    folder whose ``cso.pt`` came from ``train --variant gnn-baseline``), or when a setting of this run would feed the
+    network inputs of another scale than it was trained on (``INPUT_CHECKS``)."""
     path = weights_path(name, sensor)
-    model, graph, variant = _cached_model(str(path), str(device))
+    model, graph, variant, trained = _cached_model(str(path), str(device))
     if variant is not None and variant != name:
         raise CheckpointError(f"{path} holds weights trained as {variant!r}, not {name!r}: the file must be named for its variant ({variant}.pt)")
-    return model, graph
+    use_entropy = VARIANTS[name].use_entropy if name in VARIANTS else graph.use_entropy
+    mismatches = input_mismatches(trained, frontier or FrontierConfig(), use_entropy)
+    refused = [m.said(name, path) for m in mismatches if m.refused]
+    if refused:
+        raise CheckpointError("; ".join(refused))
+    return model, graph, [m.said(name, path) for m in mismatches if not m.refused]
 
 
-def check_weights(name: str, device: str = "cpu", sensor: SensorConfig | None = None) -> None:
-    """Load ``name``'s weights for ``sensor`` now (kept for the episodes), so that a corrupt file, or one of
-    another variant, is one clear error before any episode starts rather than a failure per scene. Raises
-    CheckpointError."""
-    _model_for(name, str(device), sensor)
+def check_weights(name: str, device: str = "cpu", sensor: SensorConfig | None = None, frontier: FrontierConfig | None = None) -> list[str]:
+    """Load ``name``'s weights for ``sensor`` now (kept for the episodes), so that a corrupt file, one of another
+    variant, or one trained on inputs this run's ``frontier`` settings would scale otherwise (``input_mismatches``) is
+    one clear error before any episode starts rather than a failure per scene. Returns the warnings of
+    ``input_mismatches`` (one line each) for the caller to say. Raises CheckpointError."""
+    return _model_for(name, str(device), sensor, frontier)[2]
 
 
 def has_method(name: str, sensor: SensorConfig | None = None) -> bool:
@@ -68,18 +78,107 @@ def save_whole(obj: Any, path: str | Path) -> None:
     write_whole(path, lambda partial: torch.save(obj, partial))
 
 
-def save_checkpoint(path: str | Path, model: GraphActorCritic, graph: GraphConfig, variant: str, extra: dict[str, Any] | None = None) -> None:
-    """Weights plus everything needed to rebuild the network and its graph (plain data only), written whole (``save_whole``)."""
+def save_checkpoint(
+    path: str | Path, model: GraphActorCritic, graph: GraphConfig, variant: str, extra: dict[str, Any] | None = None, frontier: FrontierConfig | None = None
+) -> None:
+    """Weights plus everything needed to rebuild the network and its graph (plain data only), written whole (``save_whole``),
+    with ``frontier``, the frontier settings its observations were built with (``train``'s episodes': ``FrontierConfig``'s
+    defaults when not given), which every load compares with the run's (``input_mismatches``)."""
     save_whole(
         {
             "variant": variant,
             "network": dataclasses.asdict(model.config),
             "graph": dataclasses.asdict(graph),
+            "frontier": dataclasses.asdict(frontier or FrontierConfig()),
             "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
             "extra": extra or {},
         },
         path,
     )
+
+
+TRAINED_FRONTIER_BEFORE_RECORD = FrontierConfig(min_cluster_size_m=0.3, entropy_window_m=2.0)
+"""The frontier settings of a checkpoint written before checkpoints recorded theirs (``frontier``): every shipped
+weights file, and every run of ``train`` until then. ``train`` has built its episodes' observations with
+``FrontierConfig``'s defaults from its first commit until the record came (``ppo.Args.env_config``: ``ExplorationConfig()``;
+no setting of ``Args`` nor of ``configs/train.yaml``, the recipe of BENCHMARKS.md's ``cso-runtime train --config
+configs/train.yaml``, changed them then), and those defaults have been 0.3 m and 2 m since the first commit. Written out rather than read from
+``FrontierConfig()``, so that a later default does not change what old weights are said to have been trained with. The
+entropy window is in every checkpoint's ``graph`` too (``GraphConfig.entropy_window_m``, set by ``train`` to its
+episodes' window, 2 m in each shipped file): ``trained_frontier`` reads it from there."""
+
+
+INPUT_CHECKS: dict[str, bool] = {"entropy_window_m": True, "min_cluster_size_m": False}
+"""The run settings (of ``frontier``) that change what the network is given, compared at every load with those the
+weights were trained with (``trained_frontier``); True: a mismatch is refused (CheckpointError), False: warned.
+
+- ``entropy_window_m`` (gamma of Eq. 4), refused: the frontier service counts I over the run's window and the graph
+  divides it by the trained one (``graph.build_graph``: I x cell size / window, about 1 along a straight frontier at the
+  trained window), so another window scales the entropy input by about run / trained: a network fed inputs of another
+  scale than it learned on, silently. Checked only for the variants that read I (``use_entropy``: not cso-no-info nor
+  gnn-baseline, whose graphs hold 0 there). Weights for another window are trained with it (``train --set
+  entropy_window_m=...``, ``ppo.Args.entropy_window_m``).
+- ``min_cluster_size_m``, warned: it decides which frontier clusters become candidate goals, the network's actions (and
+  the smallest ``size`` input a node may have), not what a node's inputs mean; every input keeps its scale, and a
+  robot whose sensor leaves more or fewer short frontier fragments may need another value on purpose.
+
+Not compared, each for its reason: the graph's own settings (``GraphConfig``: node limits, past-position nodes, knn,
+distance scale, which features) come from the checkpoint itself, never from the run, so they cannot differ; the
+sensor's field of view picks its own file (``weights.weights_path``: ``<method>@fov<deg>.pt``) and is warned of from
+the record beside the weights (``weights.sensor_mismatches``), as the masks' stuck settings are
+(``weights.mask_mismatches``): masks act on the network's output (the logits), not on its inputs, and the valid distance
+mask's far bound is run other than trained on purpose; the map's cell size is each map's own, not a setting, and every
+input is made free of it (lengths in metres over ``distance_scale_m``, I times the cell size), the recipe training at
+0.05 and 0.1 m a cell; the robot's radius (which cells are traversable) and the replanning period (how far apart the
+past-position nodes lie) are the robot's and the run's, and change what the inputs measure, never their scale."""
+
+
+def trained_frontier(ckpt: dict[str, Any], graph: GraphConfig) -> FrontierConfig:
+    """The frontier settings the weights of ``ckpt`` (with its ``graph``) were trained with: its ``frontier`` record,
+    or, in a checkpoint written before the record, ``TRAINED_FRONTIER_BEFORE_RECORD`` with the entropy window of its
+    graph. A key the record lacks (a later setting) takes the value of before the record."""
+    before = dataclasses.replace(TRAINED_FRONTIER_BEFORE_RECORD, entropy_window_m=float(graph.entropy_window_m))
+    record = ckpt.get("frontier")
+    if not isinstance(record, dict):
+        return before
+    known = {f.name for f in dataclasses.fields(FrontierConfig)}
+    return dataclasses.replace(before, **{k: float(v) for k, v in record.items() if k in known and isinstance(v, (int, float))})
+
+
+@dataclasses.dataclass(frozen=True)
+class InputMismatch:
+    """One run setting of ``INPUT_CHECKS`` that differs from the weights' training."""
+
+    key: str
+    """The ``FrontierConfig`` field (``frontier.<key>`` in eval's ``--set``)."""
+    trained: float
+    run: float
+    refused: bool
+
+    def said(self, name: str, path: Path) -> str:
+        """One line naming the parameter, both values and how to proceed."""
+        matching = f"--set frontier.{self.key}={self.trained:g} (up: --set exploration.frontier.{self.key}={self.trained:g})"
+        head = f"the weights of {name} ({path}) were trained with frontier.{self.key} {self.trained:g} m, this run's is {self.run:g} m"
+        if self.key == "entropy_window_m":
+            return (
+                f"{head}: the network's entropy input would be about {self.run / self.trained:g} times what it learned on;"
+                f" run with {matching}, or with weights trained with a {self.run:g} m window"
+                f" (cso-runtime train --config configs/train.yaml --set entropy_window_m={self.run:g})"
+            )
+        return f"{head}: its candidate goals would be other frontier clusters than it learned to choose among; {matching} runs them as trained"
+
+
+def input_mismatches(trained: FrontierConfig, run: FrontierConfig, use_entropy: bool = True) -> list[InputMismatch]:
+    """The settings of ``INPUT_CHECKS`` in which ``run`` differs from ``trained`` (``trained_frontier``), in that order;
+    the entropy window only where the variant reads I (``use_entropy``)."""
+    found = []
+    for key, refused in INPUT_CHECKS.items():
+        if key == "entropy_window_m" and not use_entropy:
+            continue
+        was, now = float(getattr(trained, key)), float(getattr(run, key))
+        if was != now:
+            found.append(InputMismatch(key, was, now, refused))
+    return found
 
 
 class CheckpointError(ValueError):
@@ -142,6 +241,9 @@ class LearnedPolicy:
         self.generator = torch.Generator()
         self._traced: Any = None
         """The traced decision network (None: not built yet; False: tracing failed, stay eager)."""
+        self.input_warnings: list[str] = []
+        """What ``make_learned_policy`` found of the run's settings against the weights' training that is warned of,
+        not refused (``input_mismatches``), one line each."""
         self.reset(seed)
 
     def reset(self, seed: int | None = None) -> None:
@@ -219,10 +321,13 @@ def device_problem(name: str) -> str:
 
 
 def make_learned_policy(
-    name: str, mask_config: MaskConfig, seed: int | None = None, device: str = "cpu", sensor: SensorConfig | None = None
+    name: str, mask_config: MaskConfig, seed: int | None = None, device: str = "cpu", sensor: SensorConfig | None = None, frontier: FrontierConfig | None = None
 ) -> LearnedPolicy:
     """Load the shipped weights of ``name`` (those trained with ``sensor``'s field of view where they
-    ship, ``weights.weights_path``); the variant's switches override the mask settings."""
+    ship, ``weights.weights_path``); the variant's switches override the mask settings. ``frontier``: the settings the
+    run's observations are built with (None: ``FrontierConfig``'s defaults), checked against the weights' training
+    (``input_mismatches``: CheckpointError for a refused one; the policy's ``input_warnings`` hold the others, for the
+    caller to say once rather than per episode)."""
     if name not in VARIANTS:
         raise ValueError(f"unknown learned method {name!r}; known: {', '.join(VARIANTS)}")
     if refusal := weights_file_refusal([name]):  # a weights file or folder given that is not there, or another method's
@@ -232,7 +337,9 @@ def make_learned_policy(
     if problem := device_problem(str(device)):
         raise ValueError(f"{problem}; run the policy on cpu")
     v = VARIANTS[name]
-    model, graph = _model_for(name, str(device), sensor)
+    model, graph, input_warnings = _model_for(name, str(device), sensor, frontier)
     graph = dataclasses.replace(graph, use_entropy=v.use_entropy)
     masks = dataclasses.replace(mask_config, use_valid_distance=v.use_valid_distance, use_stuck=v.use_stuck)
-    return LearnedPolicy(name, model, graph, masks, seed=seed, device=device)
+    policy = LearnedPolicy(name, model, graph, masks, seed=seed, device=device)
+    policy.input_warnings = input_warnings
+    return policy
