@@ -459,6 +459,14 @@ restarts it after ``supervision.hang_timeout_s`` more, while Zenoh's thread woul
 The slowest handlers take well under a second (a decision on a large map)."""
 
 
+INBOX_LIMIT = 1000
+"""The most inputs a service keeps waiting for its loop (real time; lockstep, until it handles them on arrival): past
+it the oldest is dropped, a rejection of its topic (``status`` shows it). Unbounded, a handler slower than its inputs
+come (a mapper on a large grid, a flood on one key) grew the service's memory and the age of what it acted on for as
+long as it ran. A real-time service keeps up with its inputs, a lockstep one gets a step's few at a time: 1000 is minutes
+of a robot's inputs, only ever reached by a service that has fallen behind for good."""
+
+
 def topic_name(key: str) -> str:
     """The last part of a key (its topic, for a robot's): what a handler stuck on it is said to handle."""
     return key.rsplit("/", 1)[-1]
@@ -479,7 +487,7 @@ class ServiceInputs:
         # queue.Queue, not SimpleQueue: Python 3.11's SimpleQueue.get(timeout=...) waits forever once a signal
         # handler runs past the deadline (its retry's timeout goes negative), so SIGINT and SIGTERM were lost on
         # the loop's thread now and then (tests/test_processes.py); Queue waits on a lock that checks the deadline.
-        self.queue: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
+        self.queue: queue.Queue[tuple[str, bytes, float]] = queue.Queue(INBOX_LIMIT)
         self.handling = threading.Lock()
         self.direct = False
         self.failure: BaseException | None = None
@@ -516,7 +524,11 @@ class ServiceInputs:
         if not self.direct:
             with self._switching:
                 if not self.direct:
-                    self.queue.put(item)
+                    try:
+                        self.queue.put_nowait(item)
+                    except queue.Full:  # the loop ``INBOX_LIMIT`` inputs behind: the oldest goes, counted
+                        self.drop_oldest()
+                        self.queue.put_nowait(item)
                     return
         with self.working(topic_name(item[0])):
             if self.stop.is_set():
@@ -532,6 +544,20 @@ class ServiceInputs:
             finally:
                 if prof is not None:
                     prof.disable()
+
+    def drop_oldest(self) -> None:
+        """Drop the oldest input waiting (the queue is full), counted as a rejection of its topic and robot. Called
+        under ``_switching``, by the one thread that puts."""
+        try:
+            key = self.queue.get_nowait()[0]
+        except queue.Empty:  # the loop took it meanwhile: room for the new one
+            return
+        try:
+            robot, topic = robot_of(key), topic_of(key)
+        except ValueError:
+            robot, topic = None, key
+        why = f"dropped unhandled: {self.queue.maxsize} inputs were waiting (its handlers are slower than its inputs come)"
+        self.service.reject(topic, why, robot)
 
     def go_direct(self) -> None:
         """Handle what is queued, then every later input on arrival (in order: no input overtakes)."""
@@ -656,6 +682,23 @@ def _say_if_launcher_gone(name: str) -> None:
     """Log why a service stops when it is because its launcher is gone (``launcher_gone``)."""
     if (gone := launcher_gone()) is not None:
         log.warning("%s: stopping: the launcher (pid %d) is gone (killed? crashed?), and no service outlives it", name, gone)
+
+
+PENDING_STEPS_KEPT = 256
+"""Real time: the most steps of one input a service keeps while it waits for their partner of the same step (the
+frontier service's maps and odometry, the planner's odometry and scans) or for a decision (the frontier service's
+planner reports). Real time acts on the newest step and drops the older ones at each step it acts on; while one input
+is silent (a mapper that died and was given up on, a LiDAR driver that stopped) nothing is acted on, and each of the
+other input's steps was kept for as long as the episode ran (a robot's odometry at 50 Hz: 180,000 a hour). 256 steps
+are 25 s at the sim's 10 Hz, far more than any input lags behind its partner."""
+
+
+def keep_newest(pending: dict[int, Any], n: int) -> None:
+    """Drop all but the ``n`` newest steps of ``pending`` (in place); a dict of at most ``n`` is left as it is at the
+    cost of one ``len``."""
+    if len(pending) > n:
+        for step in sorted(pending)[:-n]:
+            del pending[step]
 
 
 STEP_JUMP_LIMIT = 500

@@ -1,0 +1,124 @@
+"""What a running service keeps while one of its inputs is silent or comes faster than it handles them: bounded,
+and what it has to let go of is counted where ``status`` shows it."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+
+from cso_runtime.config import ExplorationConfig
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
+from cso_runtime.keys import RobotKeys
+from cso_runtime.messages import ClockMsg, MapMsg, OdometryMsg, PlannerFeedbackMsg, ScanMsg, ServiceStatusMsg, decode, encode
+from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+from services.common import PENDING_STEPS_KEPT
+from services.frontier import FrontierService
+from services.planner import PlannerService
+from tests.conftest import HANG_DEADLINE_S, wait_for
+from tests.test_service_logic import _explorer_at, _feed, _inputs, _service
+
+
+def test_a_real_time_frontier_service_whose_maps_stopped_keeps_a_bounded_number_of_steps_and_decides_on_the_next_map():
+    """The mapper gone (died, given up on): odometry and the planner's reports go on at the control rate, and the
+    frontier service kept every one of them, waiting for its map, for as long as the episode ran."""
+    frontier, out = _service(FrontierService, lockstep=False)
+    ex = _explorer_at(0)
+    _, odom0, _ = _inputs(ex, 0)
+    last = 3 * PENDING_STEPS_KEPT
+    for step in range(1, last + 1):
+        _feed(frontier, OdometryMsg(step, 0.1 * step, odom0.pose))
+        _feed(frontier, PlannerFeedbackMsg(step, "idle", "command"))
+    assert len(frontier.odoms) == PENDING_STEPS_KEPT and min(frontier.odoms) == last - PENDING_STEPS_KEPT + 1
+    assert len(frontier.feedback) == PENDING_STEPS_KEPT
+    _feed(frontier, MapMsg.of(last, ex.map))  # the mapper back: the newest step is decided at once
+    assert [(t, m.step, m.decide) for t, m in out if t == "frontiers"] == [("frontiers", last, True)]
+    assert not frontier.odoms and not frontier.maps
+
+
+def test_a_real_time_frontier_service_whose_odometry_stopped_keeps_a_bounded_number_of_maps():
+    frontier, out = _service(FrontierService, lockstep=False)
+    ex = _explorer_at(0)
+    for step in range(1, 2 * PENDING_STEPS_KEPT + 1):
+        _feed(frontier, MapMsg.of(step, ex.map))
+    assert len(frontier.maps) == PENDING_STEPS_KEPT and out == []
+
+
+def test_a_real_time_planner_whose_lidar_stopped_keeps_a_bounded_number_of_odometry_steps_and_commands_the_next_scan():
+    """A LiDAR driver that stopped: the planner said it was stale (no scan), and kept every odometry message (50 Hz
+    on a robot) waiting for its scan, for as long as the run went on."""
+    planner, out = _service(PlannerService, lockstep=False)
+    ex = _explorer_at(0)
+    _, odom, scan = _inputs(ex, 0)
+    last = 3 * PENDING_STEPS_KEPT
+    for step in range(1, last + 1):
+        _feed(planner, OdometryMsg(step, odom.stamp_s + 0.1 * step, odom.pose))
+    assert len(planner.odoms) == PENDING_STEPS_KEPT
+    _feed(planner, ScanMsg(last, scan.scan, scan.sensor_pose))
+    assert [m.step for t, m in out if t == "cmd_vel"] == [last]
+    for step in range(last + 1, last + 1 + 2 * PENDING_STEPS_KEPT):  # and the other way round
+        _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose))
+    assert len(planner.scans) == PENDING_STEPS_KEPT
+
+
+def test_a_real_time_service_behind_its_inputs_keeps_a_bounded_inbox_and_counts_what_it_drops(monkeypatch):
+    """Real time, a service's inputs wait in a queue for its loop: one whose handler is slower than its inputs come (a
+    mapper on a large grid, a flood on one of its keys) grew it, and its memory, without bound, each input acted on
+    older than the last, with nothing in its status. Past ``INBOX_LIMIT`` the oldest input is dropped and counted as a
+    rejection of its topic; the service goes on and handles what comes next."""
+    from services import common
+    from services.common import ServiceContext, run_service
+    from services.mapper import MapperService
+
+    limit, extra = 20, 30
+    monkeypatch.setattr(common, "INBOX_LIMIT", limit)
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        maps: list[int] = []
+        sub = session.declare_subscriber(keys.map, lambda s: maps.append(decode(s.payload.to_bytes(), MapMsg).step))
+        svc = MapperService(ServiceContext("mapper", "t1", {}, ExplorationConfig(), client, {"restore_timeout_s": 0.2}))
+        assert not svc.ctx.lockstep
+        entered, release = threading.Event(), threading.Event()
+        handle = svc.on_message
+
+        def slow_on_scans(robot: str, topic: str, msg: Any, received_s: float) -> None:
+            if topic == "scan" and not release.is_set():
+                entered.set()
+                release.wait(30)  # its handler far slower than its inputs come
+            handle(robot, topic, msg, received_s)
+
+        svc.on_message = slow_on_scans
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+
+        def status() -> ServiceStatusMsg | None:
+            replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(keys.service_status("mapper"), timeout=HANG_DEADLINE_S) if r.ok]
+            return replies[0] if replies else None
+
+        thread.start()
+        try:
+            wait_for(status, HANG_DEADLINE_S, "the mapper's status")
+            session.put(keys.clock, encode(ClockMsg(0, 0.0, GridGeometry(0.1, (40, 40)))))
+            scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
+            session.put(keys.scan, encode(ScanMsg(0, scan, Pose2D(2.0, 2.0, 0.0))))
+            assert entered.wait(HANG_DEADLINE_S), "the scan's handler never ran"
+            for step in range(1, limit + extra + 1):
+                session.put(keys.scan, encode(ScanMsg(step, scan, Pose2D(2.0, 2.0, 0.0))))
+            wait_for(lambda: (s := status()) is not None and s.rejected.get("scan") == extra, HANG_DEADLINE_S, f"{extra} scans dropped and counted")
+            assert svc.backlog() == limit
+            release.set()
+            wait_for(lambda: limit + extra in maps, HANG_DEADLINE_S, "the map of the newest scan")
+            assert maps == [0, *range(extra + 1, limit + extra + 1)], "the oldest waiting were dropped, the newest handled in order"
+            session.put(keys.scan, encode(ScanMsg(limit + extra + 1, scan, Pose2D(2.0, 2.0, 0.0))))
+            wait_for(lambda: limit + extra + 1 in maps, HANG_DEADLINE_S, "a map for the next scan")
+            final = status()
+            assert final is not None and final.rejected == {"scan": extra} and final.processed == 1 + limit + 2  # the clock, scan 0, the kept, the next
+        finally:
+            release.set()
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+    assert not thread.is_alive()
