@@ -32,7 +32,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, NoReturn, TypeVar
@@ -215,6 +215,10 @@ class Service:
         self.processed_by_robot: collections.Counter[str] = collections.Counter()
         self.heard_from_s: dict[str, float] = {}
         """Robot -> when its last input came (``time.monotonic()``), accepted or rejected: when to ``forget_robot`` it."""
+        self.callback_errors = 0
+        """Exceptions raised in the service's Zenoh callbacks besides its inputs' (its status, cache and own queryables,
+        a liveliness subscriber: ``guarded``) or in its ``extra_status``: logged, and counted as the status's
+        ``callback_errors``."""
         self.step_guard = StepGuard()
         self.last_step = 0
         self._state_and_reason = ("running", "")
@@ -398,11 +402,42 @@ class Service:
             log.info("%s: %s%s", self.name, state, f" ({reason})" if reason else "")
         self._state_and_reason = (state, reason)
 
+    def guarded(self, callback: Callable[[Any], None]) -> Callable[[Any], None]:
+        """``callback`` for Zenoh, beside the inputs' (a queryable, a liveliness subscriber): an exception in it reached
+        only Zenoh's own log line, in no count, and a status queryable that raised left the service unanswering, killed
+        and restarted by its launcher as hung. Here it is logged with its traceback (the first few) and counted
+        (``callback_errors``, in the status's counters); the service goes on."""
+        name = str(getattr(callback, "__name__", None) or getattr(getattr(callback, "func", None), "__name__", "a callback"))
+
+        def call(arg: Any) -> None:
+            try:
+                callback(arg)
+            except Exception:  # noqa: BLE001 - logged with its traceback and counted
+                self.callback_failed(name)
+
+        return call
+
+    def callback_failed(self, name: str) -> None:
+        """Count (and log with its traceback, the first few and every hundredth) an exception raised in ``name``."""
+        with self._lock:
+            self.callback_errors += 1
+            n = self.callback_errors
+        if n <= 5 or n % 100 == 0:
+            log.exception("%s: %s raised (%d callback errors so far); the service goes on", self.name, name, n)
+
     def status_msg(self) -> ServiceStatusMsg:
+        try:
+            own = self.extra_status()
+        except Exception:  # noqa: BLE001 - a service of one's own's counts: its status goes out without them, the error counted
+            self.callback_failed("extra_status")
+            own = {}
         with self._lock:
             rejected = dict(self.rejected)
+            errors = self.callback_errors
         # Counts only (what the schema carries): anything else would make the whole status undecodable.
-        counters = {str(k): v for k, v in self.extra_status().items() if isinstance(v, int) and not isinstance(v, bool) and v >= 0}
+        counters = {str(k): v for k, v in own.items() if isinstance(v, int) and not isinstance(v, bool) and v >= 0}
+        if errors:
+            counters["callback_errors"] = errors
         state, reason = self._state_and_reason  # read once: the pair set together
         return ServiceStatusMsg(self.name, self.ctx.robot, state, self.last_step, reason, rejected, self.processed, counters)
 
@@ -628,8 +663,8 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
         service.session = session
         handler = zenoh.handlers.Callback(inputs.on_sample, indirect=False)
         subs = [session.declare_subscriber(keys.topic(t), handler) for t in service.inputs]
-        status_q = session.declare_queryable(ctx.keys.service_status(service.name), on_status_query)
-        cache_qs = [session.declare_queryable(ctx.keys.cache(t), functools.partial(service.answer_cache_query, t)) for t in service.serves_latest]
+        status_q = session.declare_queryable(ctx.keys.service_status(service.name), service.guarded(on_status_query))
+        cache_qs = [session.declare_queryable(ctx.keys.cache(t), service.guarded(functools.partial(service.answer_cache_query, t))) for t in service.serves_latest]
         for t in service.outputs:
             service.declare_publisher(ctx.keys.topic(t))
         t0 = time.perf_counter()

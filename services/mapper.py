@@ -90,7 +90,7 @@ class MapperService(Service):
 
     def start(self) -> None:
         assert self.session is not None
-        self._queryable = self.session.declare_queryable(self.ctx.keys.map, self._on_query)
+        self._queryable = self.session.declare_queryable(self.ctx.keys.map, self.guarded(self._on_query))
         cached = self.query_latest(self.ctx.keys.cache("map"), MapMsg, self.params.restore_timeout_s)
         if isinstance(cached, MapMsg):
             self.restore(cached)

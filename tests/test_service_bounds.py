@@ -122,3 +122,52 @@ def test_a_real_time_service_behind_its_inputs_keeps_a_bounded_inbox_and_counts_
             thread.join(10)
             sub.undeclare()
     assert not thread.is_alive()
+
+
+def test_an_exception_in_a_services_queryable_is_counted_in_its_status_and_its_status_still_answers(caplog):
+    """A service's queryables run on Zenoh's thread: an exception there reached only Zenoh's own log line and no count,
+    and one raised by a service's ``extra_status`` (its own counts, a service of one's own's code) left its status
+    query unanswered: its launcher killed and restarted it as hung, again and again. Now the status goes out without
+    those counts, and every such exception is logged and counted (``callback_errors``)."""
+    from services.common import Service, ServiceContext, run_service
+
+    class Probe(Service):
+        name = "probe"
+        inputs = {"scan": ScanMsg}
+        serves_latest = ("map",)
+
+        def on_message(self, robot: str, topic: str, msg: Any, received_s: float) -> None:
+            pass
+
+        def extra_status(self) -> dict[str, int]:
+            raise KeyError("a bug in its own counts")
+
+        def answer_cache_query(self, topic: str, query: Any) -> None:
+            raise RuntimeError(f"a bug in its {topic} cache")
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        svc = Probe(ServiceContext("probe", "t1", {}, ExplorationConfig(), client, {}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+
+        def status() -> ServiceStatusMsg | None:
+            replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(keys.service_status("probe"), timeout=2.0) if r.ok]
+            return replies[0] if replies else None
+
+        thread.start()
+        try:
+            wait_for(lambda: any(True for r in session.liveliness().get(keys.alive("probe"), timeout=0.5) if r.ok), HANG_DEADLINE_S, "the probe's token")
+            with caplog.at_level("ERROR", logger="cso.service"):
+                first = status()
+                assert first is not None, "the status query went unanswered"
+                assert first.counters == {"callback_errors": 1} and first.state == "running"
+                assert not [r for r in session.get(keys.cache("map"), timeout=0.5) if r.ok]
+                wait_for(lambda: (s := status()) is not None and s.counters["callback_errors"] == 3, HANG_DEADLINE_S, "the cache query's error counted")
+            assert "probe: extra_status raised (1 callback errors so far)" in caplog.text and "a bug in its map cache" in caplog.text
+        finally:
+            stop.set()
+            thread.join(10)
+    assert not thread.is_alive()
