@@ -171,3 +171,58 @@ def test_an_exception_in_a_services_queryable_is_counted_in_its_status_and_its_s
             stop.set()
             thread.join(10)
     assert not thread.is_alive()
+
+
+def test_a_late_joiner_asking_the_real_time_mapper_for_its_map_gets_the_map_last_published_not_one_half_integrated(monkeypatch):
+    """In real time the mapper's loop integrates each scan into its map while Zenoh's thread answers the map query of
+    a late joiner (a restarted frontier service): the answer was built from the map being integrated into, a scan
+    half in under the step before it, or a map every receiver refuses (its explored cells copied before a scan, its
+    occupied ones after). The answer is the map last published, whole."""
+    from services import mapper as mapper_module
+    from services.common import ServiceContext, run_service
+    from services.mapper import MapperService
+
+    integrated, release = threading.Event(), threading.Event()
+    real_integrate = mapper_module.integrate_observation
+
+    def integrate_then_wait(occupancy: Any, pose: Pose2D, scan: LaserScan, config: Any) -> int:
+        newly = real_integrate(occupancy, pose, scan, config)
+        if pose.x_m > 3.0:  # the second scan: the query comes while its handler is still at it
+            integrated.set()
+            release.wait(30)
+        return newly
+
+    monkeypatch.setattr(mapper_module, "integrate_observation", integrate_then_wait)
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        maps: list[MapMsg] = []
+        sub = session.declare_subscriber(keys.map, lambda s: maps.append(decode(s.payload.to_bytes(), MapMsg)))
+        svc = MapperService(ServiceContext("mapper", "t1", {}, ExplorationConfig(), client, {"restore_timeout_s": 0.2}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: any(True for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5) if r.ok), HANG_DEADLINE_S, "the mapper's token")
+            session.put(keys.clock, encode(ClockMsg(0, 0.0, GridGeometry(0.1, (40, 60)))))
+            scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
+            session.put(keys.scan, encode(ScanMsg(0, scan, Pose2D(1.5, 2.0, 0.0), 7)))
+            wait_for(lambda: maps, HANG_DEADLINE_S, "the map of step 0")
+            session.put(keys.scan, encode(ScanMsg(1, scan, Pose2D(4.5, 2.0, 0.0), 7)))
+            assert integrated.wait(HANG_DEADLINE_S), "the second scan was never integrated"
+            replies = [r.ok.payload.to_bytes() for r in session.get(keys.map, timeout=HANG_DEADLINE_S) if r.ok]
+            assert len(replies) == 1
+            late = decode(replies[0], MapMsg)  # a map the receiver refuses fails here
+            assert (late.step, late.episode) == (0, 7)
+            np.testing.assert_array_equal(late.grid, maps[0].grid)  # not scan 1's cells under step 0
+            release.set()
+            wait_for(lambda: len(maps) == 2, HANG_DEADLINE_S, "the map of step 1")
+            late = next(decode(r.ok.payload.to_bytes(), MapMsg) for r in session.get(keys.map, timeout=HANG_DEADLINE_S) if r.ok)
+            assert late.step == 1 and np.array_equal(late.grid, maps[1].grid)
+        finally:
+            release.set()
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+    assert not thread.is_alive()
