@@ -590,7 +590,7 @@ class ServiceInputs:
         try:
             robot, topic = robot_of(key), topic_of(key)
         except ValueError:
-            robot, topic = None, key
+            robot, topic = None, key_topic(key)
         why = f"dropped unhandled: {self.queue.maxsize} inputs were waiting (its handlers are slower than its inputs come)"
         self.service.reject(topic, why, robot)
 
@@ -854,11 +854,25 @@ class NoFrontierEnd:
         return ""
 
 
+UNKNOWN_KEY = "unknown_key"
+"""What ``rejected`` counts a payload under whose key names no topic (``key_topic``)."""
+
+
+def key_topic(key: str) -> str:
+    """The topic a rejection of a payload on ``key`` is counted under: the key's, else ``UNKNOWN_KEY``. Never the key
+    itself: a service subscribed to every robot (``cso/*/...``) hears keys of any robot chunk, and counted by key its
+    ``rejected`` (and its status) grew by one entry per key a sender made up."""
+    try:
+        return topic_of(key)
+    except ValueError:
+        return UNKNOWN_KEY
+
+
 def _dispatch(service: Service, key: str, payload: bytes, received_s: float, inputs: ServiceInputs | None = None) -> None:
     try:
         robot, topic = robot_of(key), topic_of(key)
     except ValueError as exc:
-        service.reject(key, str(exc))
+        service.reject(key_topic(key), str(exc))
         return
     service.heard_from_s[robot] = received_s
     expected = service.inputs.get(topic)

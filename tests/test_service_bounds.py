@@ -226,3 +226,32 @@ def test_a_late_joiner_asking_the_real_time_mapper_for_its_map_gets_the_map_last
             thread.join(10)
             sub.undeclare()
     assert not thread.is_alive()
+
+
+def test_a_policy_server_counts_payloads_on_keys_of_no_robot_under_their_topic_not_one_entry_per_key_made_up():
+    """A policy serving every robot subscribes to ``cso/*/frontiers``, so it hears keys of any robot chunk: a rejection
+    of a key that names no valid robot was counted under the key itself, and every key a sender made up added an entry
+    to its ``rejected`` and to its status, without bound. They are counted under the topic; a valid robot is still
+    served after them."""
+    from cso_runtime.messages import GoalMsg, frontiers_from_observation
+    from tests.test_messages import _observation
+    from tests.test_runtime import shared_policy_server
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        goals: list[GoalMsg] = []
+        sub = session.declare_subscriber(RobotKeys("a").goal, lambda s: goals.append(decode(s.payload.to_bytes(), GoalMsg)))
+        with shared_policy_server(session, client) as svc:
+            try:
+                made_up = 200
+                for i in range(made_up):
+                    session.put(f"cso/not.a.robot{i}/frontiers", b"anything")
+                payload = encode(frontiers_from_observation(0, "no_goal", _observation(), 1.0))
+                session.put(RobotKeys("a").frontiers, payload)
+                wait_for(lambda: goals, HANG_DEADLINE_S, "robot a's goal after the made-up keys")
+                replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(RobotKeys("a").service_status("policy"), timeout=HANG_DEADLINE_S) if r.ok]
+                assert replies and replies[0].rejected == {"frontiers": made_up}, replies
+                assert svc.rejected == {"frontiers": made_up}
+            finally:
+                sub.undeclare()
