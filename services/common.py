@@ -60,6 +60,7 @@ from cso_runtime.messages import (
     Message,
     MessageError,
     ServiceStatusMsg,
+    clipped,
     decode,
     encode,
     set_max_grid_cells,
@@ -439,7 +440,9 @@ class Service:
         if errors:
             counters["callback_errors"] = errors
         state, reason = self._state_and_reason  # read once: the pair set together
-        return ServiceStatusMsg(self.name, self.ctx.robot, state, self.last_step, reason, rejected, self.processed, counters)
+        # Clipped to what the schema takes: a longer reason (a policy server's, naming each of its stale robots) made the
+        # whole status undecodable, and `status` showed the service as not answering.
+        return ServiceStatusMsg(self.name, self.ctx.robot, state, self.last_step, clipped(reason), rejected, self.processed, counters)
 
     def query_latest(self, key: str, expected: type[Message], timeout_s: float = 1.0, retry_period_s: float = 0.05) -> Message | None:
         """The newest valid reply to ``key`` (by ``step``), for late joiners and restarts.

@@ -4,6 +4,7 @@ and what it has to let go of is counted where ``status`` shows it."""
 from __future__ import annotations
 
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -255,3 +256,24 @@ def test_a_policy_server_counts_payloads_on_keys_of_no_robot_under_their_topic_n
                 assert svc.rejected == {"frontiers": made_up}
             finally:
                 sub.undeclare()
+
+
+def test_a_policy_server_with_many_stale_robots_still_sends_a_status_that_decodes():
+    """A policy serving every robot names each robot it does not command in its status's reason: past the schema's 4096
+    characters (40 robots of long ids gone quiet) its whole status was refused by every reader, and ``status`` showed
+    the policy as not answering. The reason is clipped to fit."""
+    from cso_runtime.messages import MAX_TEXT_CHARS, FrontiersMsg, frontiers_from_observation
+    from services.policy import PolicyService
+    from tests.test_messages import _observation
+
+    policy, _ = _service(PolicyService, lockstep=False, params={"serve_all_robots": True})
+    decision = decode(encode(frontiers_from_observation(0, "no_goal", _observation(), 1.0)), FrontiersMsg)
+    now_s = time.monotonic()
+    robots = [f"robot{i:02d}" + "x" * 57 for i in range(40)]
+    for robot in robots:
+        policy.on_message(robot, "frontiers", decision, now_s)
+    policy.on_tick(now_s + 2 * policy.params.stale_after_s)
+    assert policy.state == "stale" and len(policy.reason) > MAX_TEXT_CHARS
+    status = decode(encode(policy.status_msg()), ServiceStatusMsg)
+    assert status.state == "stale" and len(status.reason) == MAX_TEXT_CHARS and status.reason.endswith("…")
+    assert status.reason.startswith(policy.reason[:100])
