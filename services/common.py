@@ -497,12 +497,33 @@ restarts it after ``supervision.hang_timeout_s`` more, while Zenoh's thread woul
 The slowest handlers take well under a second (a decision on a large map)."""
 
 
-INBOX_LIMIT = 1000
-"""The most inputs a service keeps waiting for its loop (real time; lockstep, until it handles them on arrival): past
-it the oldest is dropped, a rejection of its topic (``status`` shows it). Unbounded, a handler slower than its inputs
-come (a mapper on a large grid, a flood on one key) grew the service's memory and the age of what it acted on for as
-long as it ran. A real-time service keeps up with its inputs, a lockstep one gets a step's few at a time: 1000 is minutes
-of a robot's inputs, only ever reached by a service that has fallen behind for good."""
+INBOX_LIMIT = 100_000
+"""The most inputs a service keeps waiting for its loop (real time; lockstep, until it handles them on arrival), and
+``INBOX_MAX_BYTES`` the most bytes of their payloads: past either the oldest input is dropped, a rejection of its topic
+(``status`` shows it). Unbounded, a handler slower than its inputs come (a mapper on a large grid, a flood on one key)
+grew the service's memory, and the age of what it acted on, for as long as it ran. A service keeps up with its inputs
+but for bursts: ``replay --speed max`` of an hour's recording (36,000 scans of 1.5 kB) fits, and loses nothing."""
+
+INBOX_MAX_BYTES = 256 << 20
+"""The most bytes of payloads waiting for a service's loop (``INBOX_LIMIT``)."""
+
+
+class Inbox(queue.Queue[tuple[str, bytes, float]]):
+    """``queue.Queue`` of a service's inputs ``(key, payload, received_s)`` that keeps the bytes of their payloads
+    (``nbytes``), counted under the queue's own lock as items come and go."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.nbytes = 0
+
+    def _put(self, item: tuple[str, bytes, float]) -> None:
+        self.nbytes += len(item[1])
+        super()._put(item)
+
+    def _get(self) -> tuple[str, bytes, float]:
+        item = super()._get()
+        self.nbytes -= len(item[1])
+        return item
 
 
 def topic_name(key: str) -> str:
@@ -525,7 +546,7 @@ class ServiceInputs:
         # queue.Queue, not SimpleQueue: Python 3.11's SimpleQueue.get(timeout=...) waits forever once a signal
         # handler runs past the deadline (its retry's timeout goes negative), so SIGINT and SIGTERM were lost on
         # the loop's thread now and then (tests/test_processes.py); Queue waits on a lock that checks the deadline.
-        self.queue: queue.Queue[tuple[str, bytes, float]] = queue.Queue(INBOX_LIMIT)
+        self.queue = Inbox()
         self.handling = threading.Lock()
         self.direct = False
         self.failure: BaseException | None = None
@@ -562,11 +583,11 @@ class ServiceInputs:
         if not self.direct:
             with self._switching:
                 if not self.direct:
-                    try:
-                        self.queue.put_nowait(item)
-                    except queue.Full:  # the loop ``INBOX_LIMIT`` inputs behind: the oldest goes, counted
-                        self.drop_oldest()
-                        self.queue.put_nowait(item)
+                    inbox = self.queue
+                    while inbox.qsize() >= INBOX_LIMIT or inbox.nbytes + len(item[1]) > INBOX_MAX_BYTES:
+                        if not self.drop_oldest():  # the loop far behind: the oldest go, counted
+                            break
+                    inbox.put(item)
                     return
         with self.working(topic_name(item[0])):
             if self.stop.is_set():
@@ -583,19 +604,20 @@ class ServiceInputs:
                 if prof is not None:
                     prof.disable()
 
-    def drop_oldest(self) -> None:
-        """Drop the oldest input waiting (the queue is full), counted as a rejection of its topic and robot. Called
-        under ``_switching``, by the one thread that puts."""
+    def drop_oldest(self) -> bool:
+        """Drop the oldest input waiting (the inbox is full), counted as a rejection of its topic and robot; False when
+        none waits (the loop took the last one meanwhile). Called under ``_switching``, by the one thread that puts."""
         try:
             key = self.queue.get_nowait()[0]
-        except queue.Empty:  # the loop took it meanwhile: room for the new one
-            return
+        except queue.Empty:
+            return False
         try:
             robot, topic = robot_of(key), topic_of(key)
         except ValueError:
             robot, topic = None, key_topic(key)
-        why = f"dropped unhandled: {self.queue.maxsize} inputs were waiting (its handlers are slower than its inputs come)"
+        why = f"dropped unhandled: the inbox was full ({INBOX_LIMIT} inputs, {INBOX_MAX_BYTES >> 20} MiB): its handlers are slower than its inputs come"
         self.service.reject(topic, why, robot)
+        return True
 
     def go_direct(self) -> None:
         """Handle what is queued, then every later input on arrival (in order: no input overtakes)."""

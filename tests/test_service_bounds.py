@@ -8,6 +8,7 @@ import time
 from typing import Any
 
 import numpy as np
+import pytest
 
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
@@ -63,17 +64,20 @@ def test_a_real_time_planner_whose_lidar_stopped_keeps_a_bounded_number_of_odome
     assert len(planner.scans) == PENDING_STEPS_KEPT
 
 
-def test_a_real_time_service_behind_its_inputs_keeps_a_bounded_inbox_and_counts_what_it_drops(monkeypatch):
+@pytest.mark.parametrize("bound", ["INBOX_LIMIT", "INBOX_MAX_BYTES"])
+def test_a_real_time_service_behind_its_inputs_keeps_a_bounded_inbox_and_counts_what_it_drops(monkeypatch, bound):
     """Real time, a service's inputs wait in a queue for its loop: one whose handler is slower than its inputs come (a
     mapper on a large grid, a flood on one of its keys) grew it, and its memory, without bound, each input acted on
-    older than the last, with nothing in its status. Past ``INBOX_LIMIT`` the oldest input is dropped and counted as a
-    rejection of its topic; the service goes on and handles what comes next."""
+    older than the last, with nothing in its status. Past ``INBOX_LIMIT`` inputs or ``INBOX_MAX_BYTES`` of payloads
+    the oldest input is dropped and counted as a rejection of its topic; the service goes on and handles what comes next."""
     from services import common
     from services.common import ServiceContext, run_service
     from services.mapper import MapperService
 
     limit, extra = 20, 30
-    monkeypatch.setattr(common, "INBOX_LIMIT", limit)
+    scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
+    one_scan_bytes = len(encode(ScanMsg(1, scan, Pose2D(2.0, 2.0, 0.0))))
+    monkeypatch.setattr(common, bound, limit if bound == "INBOX_LIMIT" else limit * one_scan_bytes)
     port = free_tcp_port()
     client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
     keys = RobotKeys("t1")
@@ -103,7 +107,6 @@ def test_a_real_time_service_behind_its_inputs_keeps_a_bounded_inbox_and_counts_
         try:
             wait_for(status, HANG_DEADLINE_S, "the mapper's status")
             session.put(keys.clock, encode(ClockMsg(0, 0.0, GridGeometry(0.1, (40, 40)))))
-            scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
             session.put(keys.scan, encode(ScanMsg(0, scan, Pose2D(2.0, 2.0, 0.0))))
             assert entered.wait(HANG_DEADLINE_S), "the scan's handler never ran"
             for step in range(1, limit + extra + 1):
