@@ -5,8 +5,8 @@ message in ``on_message`` and may act periodically in ``on_tick``. ``run_service
 (the shared transport helper, multicast scouting off), declares the status queryable and the
 service's publishers, warms the service up (``warm_up``), then declares the liveliness token
 ``cso/<robot>/alive/<name>``, and handles inputs one at a time
-(``ServiceInputs``): in real time from a queue filled by Zenoh's callback, in lockstep at once on
-Zenoh's network thread. Payloads that fail validation are logged and counted per key, never
+(``ServiceInputs``): in real time from a queue filled by Zenoh's callback (bounded: ``INBOX_LIMIT``, the oldest
+dropped and counted past it), in lockstep at once on Zenoh's network thread. Payloads that fail validation are logged and counted per key, never
 crash the service. SIGINT/SIGTERM stop the loop; ``shutdown`` runs while the session is still open
 (last messages, e.g. the bridge's zero Twist); the ``with`` blocks close the session. A service with
 command-line options of its own declares them in ``add_arguments`` and folds them into its profile
