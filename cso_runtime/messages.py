@@ -299,7 +299,17 @@ def _int(body: dict, key: str, where: str, lo: int = 0, hi: int = 2**62) -> int:
     return v
 
 
-def _str(body: dict, key: str, where: str, choices: tuple[str, ...] | None = None, max_len: int = 4096) -> str:
+MAX_TEXT_CHARS = 4096
+"""The most characters of a message's text field (a reason, a name) unless the field says otherwise: a longer one is
+refused (``_str``), so a sender clips its own (``clipped``)."""
+
+
+def clipped(text: str, max_chars: int = MAX_TEXT_CHARS) -> str:
+    """``text`` as it is when it fits ``max_chars``, else its start and an ellipsis in ``max_chars`` characters."""
+    return text if len(text) <= max_chars else text[: max_chars - 1] + "…"
+
+
+def _str(body: dict, key: str, where: str, choices: tuple[str, ...] | None = None, max_len: int = MAX_TEXT_CHARS) -> str:
     v = _get(body, key, where)
     if not isinstance(v, str) or len(v) > max_len:
         raise MessageError(f"{where}.{key}: expected a string")

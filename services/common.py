@@ -5,8 +5,8 @@ message in ``on_message`` and may act periodically in ``on_tick``. ``run_service
 (the shared transport helper, multicast scouting off), declares the status queryable and the
 service's publishers, warms the service up (``warm_up``), then declares the liveliness token
 ``cso/<robot>/alive/<name>``, and handles inputs one at a time
-(``ServiceInputs``): in real time from a queue filled by Zenoh's callback, in lockstep at once on
-Zenoh's network thread. Payloads that fail validation are logged and counted per key, never
+(``ServiceInputs``): in real time from a queue filled by Zenoh's callback (bounded: ``INBOX_LIMIT``, the oldest
+dropped and counted past it), in lockstep at once on Zenoh's network thread. Payloads that fail validation are logged and counted per key, never
 crash the service. SIGINT/SIGTERM stop the loop; ``shutdown`` runs while the session is still open
 (last messages, e.g. the bridge's zero Twist); the ``with`` blocks close the session. A service with
 command-line options of its own declares them in ``add_arguments`` and folds them into its profile
@@ -32,7 +32,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, NoReturn, TypeVar
@@ -60,6 +60,7 @@ from cso_runtime.messages import (
     Message,
     MessageError,
     ServiceStatusMsg,
+    clipped,
     decode,
     encode,
     set_max_grid_cells,
@@ -215,6 +216,10 @@ class Service:
         self.processed_by_robot: collections.Counter[str] = collections.Counter()
         self.heard_from_s: dict[str, float] = {}
         """Robot -> when its last input came (``time.monotonic()``), accepted or rejected: when to ``forget_robot`` it."""
+        self.callback_errors = 0
+        """Exceptions raised in the service's Zenoh callbacks besides its inputs' (its status, cache and own queryables,
+        a liveliness subscriber: ``guarded``) or in its ``extra_status``: logged, and counted as the status's
+        ``callback_errors``."""
         self.step_guard = StepGuard()
         self.last_step = 0
         self._state_and_reason = ("running", "")
@@ -398,13 +403,46 @@ class Service:
             log.info("%s: %s%s", self.name, state, f" ({reason})" if reason else "")
         self._state_and_reason = (state, reason)
 
+    def guarded(self, callback: Callable[[Any], None]) -> Callable[[Any], None]:
+        """``callback`` for Zenoh, beside the inputs' (a queryable, a liveliness subscriber): an exception in it reached
+        only Zenoh's own log line, in no count, and a status queryable that raised left the service unanswering, killed
+        and restarted by its launcher as hung. Here it is logged with its traceback (the first few) and counted
+        (``callback_errors``, in the status's counters); the service goes on."""
+        name = str(getattr(callback, "__name__", None) or getattr(getattr(callback, "func", None), "__name__", "a callback"))
+
+        def call(arg: Any) -> None:
+            try:
+                callback(arg)
+            except Exception:  # noqa: BLE001 - logged with its traceback and counted
+                self.callback_failed(name)
+
+        return call
+
+    def callback_failed(self, name: str) -> None:
+        """Count (and log with its traceback, the first few and every hundredth) an exception raised in ``name``."""
+        with self._lock:
+            self.callback_errors += 1
+            n = self.callback_errors
+        if n <= 5 or n % 100 == 0:
+            log.exception("%s: %s raised (%d callback errors so far); the service goes on", self.name, name, n)
+
     def status_msg(self) -> ServiceStatusMsg:
+        try:
+            own = self.extra_status()
+        except Exception:  # noqa: BLE001 - a service of one's own's counts: its status goes out without them, the error counted
+            self.callback_failed("extra_status")
+            own = {}
         with self._lock:
             rejected = dict(self.rejected)
+            errors = self.callback_errors
         # Counts only (what the schema carries): anything else would make the whole status undecodable.
-        counters = {str(k): v for k, v in self.extra_status().items() if isinstance(v, int) and not isinstance(v, bool) and v >= 0}
+        counters = {str(k): v for k, v in own.items() if isinstance(v, int) and not isinstance(v, bool) and v >= 0}
+        if errors:
+            counters["callback_errors"] = errors
         state, reason = self._state_and_reason  # read once: the pair set together
-        return ServiceStatusMsg(self.name, self.ctx.robot, state, self.last_step, reason, rejected, self.processed, counters)
+        # Clipped to what the schema takes: a longer reason (a policy server's, naming each of its stale robots) made the
+        # whole status undecodable, and `status` showed the service as not answering.
+        return ServiceStatusMsg(self.name, self.ctx.robot, state, self.last_step, clipped(reason), rejected, self.processed, counters)
 
     def query_latest(self, key: str, expected: type[Message], timeout_s: float = 1.0, retry_period_s: float = 0.05) -> Message | None:
         """The newest valid reply to ``key`` (by ``step``), for late joiners and restarts.
@@ -459,6 +497,35 @@ restarts it after ``supervision.hang_timeout_s`` more, while Zenoh's thread woul
 The slowest handlers take well under a second (a decision on a large map)."""
 
 
+INBOX_LIMIT = 100_000
+"""The most inputs a service keeps waiting for its loop (real time; lockstep, until it handles them on arrival), and
+``INBOX_MAX_BYTES`` the most bytes of their payloads: past either the oldest input is dropped, a rejection of its topic
+(``status`` shows it). Unbounded, a handler slower than its inputs come (a mapper on a large grid, a flood on one key)
+grew the service's memory, and the age of what it acted on, for as long as it ran. A service keeps up with its inputs
+but for bursts: ``replay --speed max`` of an hour's recording (36,000 scans of 1.5 kB) fits, and loses nothing."""
+
+INBOX_MAX_BYTES = 256 << 20
+"""The most bytes of payloads waiting for a service's loop (``INBOX_LIMIT``)."""
+
+
+class Inbox(queue.Queue[tuple[str, bytes, float]]):
+    """``queue.Queue`` of a service's inputs ``(key, payload, received_s)`` that keeps the bytes of their payloads
+    (``nbytes``), counted under the queue's own lock as items come and go."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.nbytes = 0
+
+    def _put(self, item: tuple[str, bytes, float]) -> None:
+        self.nbytes += len(item[1])
+        super()._put(item)
+
+    def _get(self) -> tuple[str, bytes, float]:
+        item = super()._get()
+        self.nbytes -= len(item[1])
+        return item
+
+
 def topic_name(key: str) -> str:
     """The last part of a key (its topic, for a robot's): what a handler stuck on it is said to handle."""
     return key.rsplit("/", 1)[-1]
@@ -479,7 +546,7 @@ class ServiceInputs:
         # queue.Queue, not SimpleQueue: Python 3.11's SimpleQueue.get(timeout=...) waits forever once a signal
         # handler runs past the deadline (its retry's timeout goes negative), so SIGINT and SIGTERM were lost on
         # the loop's thread now and then (tests/test_processes.py); Queue waits on a lock that checks the deadline.
-        self.queue: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
+        self.queue = Inbox()
         self.handling = threading.Lock()
         self.direct = False
         self.failure: BaseException | None = None
@@ -516,7 +583,11 @@ class ServiceInputs:
         if not self.direct:
             with self._switching:
                 if not self.direct:
-                    self.queue.put(item)
+                    inbox = self.queue
+                    while inbox.qsize() >= INBOX_LIMIT or inbox.nbytes + len(item[1]) > INBOX_MAX_BYTES:
+                        if not self.drop_oldest():  # the loop far behind: the oldest go, counted
+                            break
+                    inbox.put(item)
                     return
         with self.working(topic_name(item[0])):
             if self.stop.is_set():
@@ -532,6 +603,21 @@ class ServiceInputs:
             finally:
                 if prof is not None:
                     prof.disable()
+
+    def drop_oldest(self) -> bool:
+        """Drop the oldest input waiting (the inbox is full), counted as a rejection of its topic and robot; False when
+        none waits (the loop took the last one meanwhile). Called under ``_switching``, by the one thread that puts."""
+        try:
+            key = self.queue.get_nowait()[0]
+        except queue.Empty:
+            return False
+        try:
+            robot, topic = robot_of(key), topic_of(key)
+        except ValueError:
+            robot, topic = None, key_topic(key)
+        why = f"dropped unhandled: the inbox was full ({INBOX_LIMIT} inputs, {INBOX_MAX_BYTES >> 20} MiB): its handlers are slower than its inputs come"
+        self.service.reject(topic, why, robot)
+        return True
 
     def go_direct(self) -> None:
         """Handle what is queued, then every later input on arrival (in order: no input overtakes)."""
@@ -602,8 +688,8 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
         service.session = session
         handler = zenoh.handlers.Callback(inputs.on_sample, indirect=False)
         subs = [session.declare_subscriber(keys.topic(t), handler) for t in service.inputs]
-        status_q = session.declare_queryable(ctx.keys.service_status(service.name), on_status_query)
-        cache_qs = [session.declare_queryable(ctx.keys.cache(t), functools.partial(service.answer_cache_query, t)) for t in service.serves_latest]
+        status_q = session.declare_queryable(ctx.keys.service_status(service.name), service.guarded(on_status_query))
+        cache_qs = [session.declare_queryable(ctx.keys.cache(t), service.guarded(functools.partial(service.answer_cache_query, t))) for t in service.serves_latest]
         for t in service.outputs:
             service.declare_publisher(ctx.keys.topic(t))
         t0 = time.perf_counter()
@@ -656,6 +742,23 @@ def _say_if_launcher_gone(name: str) -> None:
     """Log why a service stops when it is because its launcher is gone (``launcher_gone``)."""
     if (gone := launcher_gone()) is not None:
         log.warning("%s: stopping: the launcher (pid %d) is gone (killed? crashed?), and no service outlives it", name, gone)
+
+
+PENDING_STEPS_KEPT = 256
+"""Real time: the most steps of one input a service keeps while it waits for their partner of the same step (the
+frontier service's maps and odometry, the planner's odometry and scans) or for a decision (the frontier service's
+planner reports). Real time acts on the newest step and drops the older ones at each step it acts on; while one input
+is silent (a mapper that died and was given up on, a LiDAR driver that stopped) nothing is acted on, and each of the
+other input's steps was kept for as long as the episode ran (a robot's odometry at 50 Hz: 180,000 a hour). 256 steps
+are 25 s at the sim's 10 Hz, far more than any input lags behind its partner."""
+
+
+def keep_newest(pending: dict[int, Any], n: int) -> None:
+    """Drop all but the ``n`` newest steps of ``pending`` (in place); a dict of at most ``n`` is left as it is at the
+    cost of one ``len``."""
+    if len(pending) > n:
+        for step in sorted(pending)[:-n]:
+            del pending[step]
 
 
 STEP_JUMP_LIMIT = 500
@@ -776,11 +879,25 @@ class NoFrontierEnd:
         return ""
 
 
+UNKNOWN_KEY = "unknown_key"
+"""What ``rejected`` counts a payload under whose key names no topic (``key_topic``)."""
+
+
+def key_topic(key: str) -> str:
+    """The topic a rejection of a payload on ``key`` is counted under: the key's, else ``UNKNOWN_KEY``. Never the key
+    itself: a service subscribed to every robot (``cso/*/...``) hears keys of any robot chunk, and counted by key its
+    ``rejected`` (and its status) grew by one entry per key a sender made up."""
+    try:
+        return topic_of(key)
+    except ValueError:
+        return UNKNOWN_KEY
+
+
 def _dispatch(service: Service, key: str, payload: bytes, received_s: float, inputs: ServiceInputs | None = None) -> None:
     try:
         robot, topic = robot_of(key), topic_of(key)
     except ValueError as exc:
-        service.reject(key, str(exc))
+        service.reject(key_topic(key), str(exc))
         return
     service.heard_from_s[robot] = received_s
     expected = service.inputs.get(topic)

@@ -41,7 +41,7 @@ from cso_runtime.observation import FrontierLayer, Observation, ObservationBuild
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
-from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_map
+from services.common import PENDING_STEPS_KEPT, EpisodeWatch, Service, ServiceContext, keep_newest, service_main, warm_up_map
 from services.frontier_layer import FrontierLayerWorker
 
 log = logging.getLogger("cso.frontier")
@@ -345,6 +345,8 @@ class FrontierService(Service):
         if isinstance(msg, PlannerFeedbackMsg):
             if msg.phase == "command" and step >= self.done_step - 1:
                 self.feedback[step] = msg
+                if not self.ctx.lockstep:  # no map (a mapper gone): no decision prunes them
+                    keep_newest(self.feedback, PENDING_STEPS_KEPT)
                 self.try_decide()
             return
         if isinstance(msg, MapMsg) and self.of_another_grid(msg, robot):
@@ -355,8 +357,12 @@ class FrontierService(Service):
             return
         if isinstance(msg, MapMsg):
             self.maps[step] = msg
+            if not self.ctx.lockstep:  # odometry silent: no map finds its partner
+                keep_newest(self.maps, PENDING_STEPS_KEPT)
         elif isinstance(msg, OdometryMsg):
             self.odoms[step] = msg
+            if not self.ctx.lockstep:  # no map (a mapper gone): no odometry finds its partner
+                keep_newest(self.odoms, PENDING_STEPS_KEPT)
         self.try_decide()
 
     def end_episode(self, how: str) -> None:

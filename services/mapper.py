@@ -83,6 +83,8 @@ class MapperService(Service):
         self.episode: int | None = None
         """Episode id of the map (from the clock); None until the first clock."""
         self.pending: list[ScanMsg] = []
+        self.published: MapMsg | None = None
+        """The map last published (a snapshot: its own arrays), which the map queryable answers with."""
         self._queryable: zenoh.Queryable | None = None
         self.params.check_grid()  # started by hand, with no `up` to check its profile: before allocating the grid
         if (shape := self.params.explicit_shape()) is not None:
@@ -90,7 +92,7 @@ class MapperService(Service):
 
     def start(self) -> None:
         assert self.session is not None
-        self._queryable = self.session.declare_queryable(self.ctx.keys.map, self._on_query)
+        self._queryable = self.session.declare_queryable(self.ctx.keys.map, self.guarded(self._on_query))
         cached = self.query_latest(self.ctx.keys.cache("map"), MapMsg, self.params.restore_timeout_s)
         if isinstance(cached, MapMsg):
             self.restore(cached)
@@ -103,12 +105,16 @@ class MapperService(Service):
         self.map = cached.occupancy().copy()  # integrated into: its own arrays
         self.map_step = cached.step
         self.episode = cached.episode
+        self.published = cached  # its arrays are not the ones integrated into
         log.info("restored the map of step %d (episode %d) from the cache", cached.step, cached.episode)
 
     def _on_query(self, query: zenoh.Query) -> None:
-        m = self.map
-        if m is not None and self.map_step >= 0:
-            query.reply(self.ctx.keys.map, encode(MapMsg.of(self.map_step, m, self.episode or 0)))
+        """Answer with the map last published. Not ``self.map``: in real time the loop's thread integrates scans into
+        it while Zenoh's thread answers, and a late joiner got a scan half integrated under the step before it (or,
+        the explored cells copied before a scan and the occupied after it, a map every receiver refuses)."""
+        published = self.published
+        if published is not None:
+            query.reply(self.ctx.keys.map, encode(published))
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         if isinstance(msg, ClockMsg):
@@ -140,7 +146,7 @@ class MapperService(Service):
             log.warning("new episode %d (map of episode %d at step %d): clearing the map", episode, self.episode, self.map_step)
             if self.map is not None:
                 self.map = OccupancyMap(self.map.geometry)
-            self.map_step = -1
+            self.map_step, self.published = -1, None
         self.episode = episode
 
     def integrate(self, scan: ScanMsg) -> None:
@@ -155,7 +161,8 @@ class MapperService(Service):
             self.map_step = scan.step
         self.last_step = self.map_step
         self.set_state("running")
-        self.publish("map", MapMsg.of(self.map_step, self.map, scan.episode))
+        self.published = MapMsg.of(self.map_step, self.map, scan.episode)
+        self.publish("map", self.published)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,7 +17,6 @@ import dataclasses
 import logging
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -44,7 +43,15 @@ from cso_runtime.messages import (
 )
 from cso_runtime.pause import LOCKSTEP_REFUSAL
 from cso_runtime.planner import FollowResult, FreeSpace, LocalPlanner, PlannerStatus
-from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_observation
+from services.common import (
+    PENDING_STEPS_KEPT,
+    EpisodeWatch,
+    Service,
+    ServiceContext,
+    keep_newest,
+    service_main,
+    warm_up_observation,
+)
 
 log = logging.getLogger("cso.planner")
 
@@ -65,12 +72,6 @@ PENDING_DECISIONS_KEPT = 16
 """Real time: decisions (frontiers with their grids, distance maps) kept while their goal has not come. A
 policy that is down or far behind must not grow the planner without bound; a goal for an older decision
 than these finds nothing to plan on and waits for the next one."""
-
-
-def keep_newest(pending: dict[int, Any], n: int) -> None:
-    """Drop all but the ``n`` newest steps of ``pending`` (in place)."""
-    for step in sorted(pending)[:-n]:
-        del pending[step]
 
 
 PLANNER_PARAMS_BOUNDS = {**seconds("stale_after_s", positive=True), **seconds("path_period_s", "restore_timeout_s")}
@@ -318,8 +319,12 @@ class PlannerService(Service):
             return
         if isinstance(msg, OdometryMsg):
             self.odoms[step] = (msg, received_s)
+            if not self.ctx.lockstep:  # a LiDAR gone silent must not grow the odometry kept for its scans without bound
+                keep_newest(self.odoms, PENDING_STEPS_KEPT)
         elif isinstance(msg, ScanMsg):
             self.scans[step] = (msg, received_s)
+            if not self.ctx.lockstep:  # nor odometry gone silent the scans
+                keep_newest(self.scans, PENDING_STEPS_KEPT)
         elif isinstance(msg, FrontiersMsg) and (msg.decide or self.ctx.lockstep):
             self.frontiers[step] = msg  # real time needs only those that carry a decision's grids
             if not self.ctx.lockstep:

@@ -170,10 +170,10 @@ class PolicyService(Service):
 
     def start(self) -> None:
         assert self.session is not None
-        self._queryables.append(self.session.declare_queryable(f"cso/{self.subscribe_robot}/goal", self._on_query))
+        self._queryables.append(self.session.declare_queryable(f"cso/{self.subscribe_robot}/goal", self.guarded(self._on_query)))
         if self.params.serve_all_robots:  # --robot's own status is the service's (run_service's queryable)
-            self._queryables.append(self.session.declare_queryable(RobotKeys("*").service_status(self.name), self._on_status_query))
-            self._queryables.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("*"), self._on_alive, history=True))
+            self._queryables.append(self.session.declare_queryable(RobotKeys("*").service_status(self.name), self.guarded(self._on_status_query)))
+            self._queryables.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("*"), self.guarded(self._on_alive), history=True))
             # The subscriber's history comes on its own time: a robot's decision input queued meanwhile (the loop
             # handles it after ``start``) was served though its run has a policy of its own. Asked here, before.
             for reply in self.session.liveliness().get(RobotKeys("*").alive(self.name), timeout=1.0):

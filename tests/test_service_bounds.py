@@ -1,0 +1,282 @@
+"""What a running service keeps while one of its inputs is silent or comes faster than it handles them: bounded,
+and what it has to let go of is counted where ``status`` shows it."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+
+from cso_runtime.config import ExplorationConfig
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
+from cso_runtime.keys import RobotKeys
+from cso_runtime.messages import ClockMsg, MapMsg, OdometryMsg, PlannerFeedbackMsg, ScanMsg, ServiceStatusMsg, decode, encode
+from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+from services.common import PENDING_STEPS_KEPT
+from services.frontier import FrontierService
+from services.planner import PlannerService
+from tests.conftest import HANG_DEADLINE_S, wait_for
+from tests.test_service_logic import _explorer_at, _feed, _inputs, _service
+
+
+def test_a_real_time_frontier_service_whose_maps_stopped_keeps_a_bounded_number_of_steps_and_decides_on_the_next_map():
+    """The mapper gone (died, given up on): odometry and the planner's reports go on at the control rate, and the
+    frontier service kept every one of them, waiting for its map, for as long as the episode ran."""
+    frontier, out = _service(FrontierService, lockstep=False)
+    ex = _explorer_at(0)
+    _, odom0, _ = _inputs(ex, 0)
+    last = 3 * PENDING_STEPS_KEPT
+    for step in range(1, last + 1):
+        _feed(frontier, OdometryMsg(step, 0.1 * step, odom0.pose))
+        _feed(frontier, PlannerFeedbackMsg(step, "idle", "command"))
+    assert len(frontier.odoms) == PENDING_STEPS_KEPT and min(frontier.odoms) == last - PENDING_STEPS_KEPT + 1
+    assert len(frontier.feedback) == PENDING_STEPS_KEPT
+    _feed(frontier, MapMsg.of(last, ex.map))  # the mapper back: the newest step is decided at once
+    assert [(t, m.step, m.decide) for t, m in out if t == "frontiers"] == [("frontiers", last, True)]
+    assert not frontier.odoms and not frontier.maps
+
+
+def test_a_real_time_frontier_service_whose_odometry_stopped_keeps_a_bounded_number_of_maps():
+    frontier, out = _service(FrontierService, lockstep=False)
+    ex = _explorer_at(0)
+    for step in range(1, 2 * PENDING_STEPS_KEPT + 1):
+        _feed(frontier, MapMsg.of(step, ex.map))
+    assert len(frontier.maps) == PENDING_STEPS_KEPT and out == []
+
+
+def test_a_real_time_planner_whose_lidar_stopped_keeps_a_bounded_number_of_odometry_steps_and_commands_the_next_scan():
+    """A LiDAR driver that stopped: the planner said it was stale (no scan), and kept every odometry message (50 Hz
+    on a robot) waiting for its scan, for as long as the run went on."""
+    planner, out = _service(PlannerService, lockstep=False)
+    ex = _explorer_at(0)
+    _, odom, scan = _inputs(ex, 0)
+    last = 3 * PENDING_STEPS_KEPT
+    for step in range(1, last + 1):
+        _feed(planner, OdometryMsg(step, odom.stamp_s + 0.1 * step, odom.pose))
+    assert len(planner.odoms) == PENDING_STEPS_KEPT
+    _feed(planner, ScanMsg(last, scan.scan, scan.sensor_pose))
+    assert [m.step for t, m in out if t == "cmd_vel"] == [last]
+    for step in range(last + 1, last + 1 + 2 * PENDING_STEPS_KEPT):  # and the other way round
+        _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose))
+    assert len(planner.scans) == PENDING_STEPS_KEPT
+
+
+@pytest.mark.parametrize("bound", ["INBOX_LIMIT", "INBOX_MAX_BYTES"])
+def test_a_real_time_service_behind_its_inputs_keeps_a_bounded_inbox_and_counts_what_it_drops(monkeypatch, bound):
+    """Real time, a service's inputs wait in a queue for its loop: one whose handler is slower than its inputs come (a
+    mapper on a large grid, a flood on one of its keys) grew it, and its memory, without bound, each input acted on
+    older than the last, with nothing in its status. Past ``INBOX_LIMIT`` inputs or ``INBOX_MAX_BYTES`` of payloads
+    the oldest input is dropped and counted as a rejection of its topic; the service goes on and handles what comes next."""
+    from services import common
+    from services.common import ServiceContext, run_service
+    from services.mapper import MapperService
+
+    limit, extra = 20, 30
+    scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
+    one_scan_bytes = len(encode(ScanMsg(1, scan, Pose2D(2.0, 2.0, 0.0))))
+    monkeypatch.setattr(common, bound, limit if bound == "INBOX_LIMIT" else limit * one_scan_bytes)
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        maps: list[int] = []
+        sub = session.declare_subscriber(keys.map, lambda s: maps.append(decode(s.payload.to_bytes(), MapMsg).step))
+        svc = MapperService(ServiceContext("mapper", "t1", {}, ExplorationConfig(), client, {"restore_timeout_s": 0.2}))
+        assert not svc.ctx.lockstep
+        entered, release = threading.Event(), threading.Event()
+        handle = svc.on_message
+
+        def slow_on_scans(robot: str, topic: str, msg: Any, received_s: float) -> None:
+            if topic == "scan" and not release.is_set():
+                entered.set()
+                release.wait(30)  # its handler far slower than its inputs come
+            handle(robot, topic, msg, received_s)
+
+        svc.on_message = slow_on_scans
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+
+        def status() -> ServiceStatusMsg | None:
+            replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(keys.service_status("mapper"), timeout=HANG_DEADLINE_S) if r.ok]
+            return replies[0] if replies else None
+
+        thread.start()
+        try:
+            wait_for(status, HANG_DEADLINE_S, "the mapper's status")
+            session.put(keys.clock, encode(ClockMsg(0, 0.0, GridGeometry(0.1, (40, 40)))))
+            session.put(keys.scan, encode(ScanMsg(0, scan, Pose2D(2.0, 2.0, 0.0))))
+            assert entered.wait(HANG_DEADLINE_S), "the scan's handler never ran"
+            for step in range(1, limit + extra + 1):
+                session.put(keys.scan, encode(ScanMsg(step, scan, Pose2D(2.0, 2.0, 0.0))))
+            wait_for(lambda: (s := status()) is not None and s.rejected.get("scan") == extra, HANG_DEADLINE_S, f"{extra} scans dropped and counted")
+            assert svc.backlog() == limit
+            release.set()
+            wait_for(lambda: limit + extra in maps, HANG_DEADLINE_S, "the map of the newest scan")
+            assert maps == [0, *range(extra + 1, limit + extra + 1)], "the oldest waiting were dropped, the newest handled in order"
+            session.put(keys.scan, encode(ScanMsg(limit + extra + 1, scan, Pose2D(2.0, 2.0, 0.0))))
+            wait_for(lambda: limit + extra + 1 in maps, HANG_DEADLINE_S, "a map for the next scan")
+            final = status()
+            assert final is not None and final.rejected == {"scan": extra} and final.processed == 1 + limit + 2  # the clock, scan 0, the kept, the next
+        finally:
+            release.set()
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+    assert not thread.is_alive()
+
+
+def test_an_exception_in_a_services_queryable_is_counted_in_its_status_and_its_status_still_answers(caplog):
+    """A service's queryables run on Zenoh's thread: an exception there reached only Zenoh's own log line and no count,
+    and one raised by a service's ``extra_status`` (its own counts, a service of one's own's code) left its status
+    query unanswered: its launcher killed and restarted it as hung, again and again. Now the status goes out without
+    those counts, and every such exception is logged and counted (``callback_errors``)."""
+    from services.common import Service, ServiceContext, run_service
+
+    class Probe(Service):
+        name = "probe"
+        inputs = {"scan": ScanMsg}
+        serves_latest = ("map",)
+
+        def on_message(self, robot: str, topic: str, msg: Any, received_s: float) -> None:
+            pass
+
+        def extra_status(self) -> dict[str, int]:
+            raise KeyError("a bug in its own counts")
+
+        def answer_cache_query(self, topic: str, query: Any) -> None:
+            raise RuntimeError(f"a bug in its {topic} cache")
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        svc = Probe(ServiceContext("probe", "t1", {}, ExplorationConfig(), client, {}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+
+        def status() -> ServiceStatusMsg | None:
+            replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(keys.service_status("probe"), timeout=2.0) if r.ok]
+            return replies[0] if replies else None
+
+        thread.start()
+        try:
+            wait_for(lambda: any(True for r in session.liveliness().get(keys.alive("probe"), timeout=0.5) if r.ok), HANG_DEADLINE_S, "the probe's token")
+            with caplog.at_level("ERROR", logger="cso.service"):
+                first = status()
+                assert first is not None, "the status query went unanswered"
+                assert first.counters == {"callback_errors": 1} and first.state == "running"
+                assert not [r for r in session.get(keys.cache("map"), timeout=0.5) if r.ok]
+                wait_for(lambda: (s := status()) is not None and s.counters["callback_errors"] == 3, HANG_DEADLINE_S, "the cache query's error counted")
+            assert "probe: extra_status raised (1 callback errors so far)" in caplog.text and "a bug in its map cache" in caplog.text
+        finally:
+            stop.set()
+            thread.join(10)
+    assert not thread.is_alive()
+
+
+def test_a_late_joiner_asking_the_real_time_mapper_for_its_map_gets_the_map_last_published_not_one_half_integrated(monkeypatch):
+    """In real time the mapper's loop integrates each scan into its map while Zenoh's thread answers the map query of
+    a late joiner (a restarted frontier service): the answer was built from the map being integrated into, a scan
+    half in under the step before it, or a map every receiver refuses (its explored cells copied before a scan, its
+    occupied ones after). The answer is the map last published, whole."""
+    from services import mapper as mapper_module
+    from services.common import ServiceContext, run_service
+    from services.mapper import MapperService
+
+    integrated, release = threading.Event(), threading.Event()
+    real_integrate = mapper_module.integrate_observation
+
+    def integrate_then_wait(occupancy: Any, pose: Pose2D, scan: LaserScan, config: Any) -> int:
+        newly = real_integrate(occupancy, pose, scan, config)
+        if pose.x_m > 3.0:  # the second scan: the query comes while its handler is still at it
+            integrated.set()
+            release.wait(30)
+        return newly
+
+    monkeypatch.setattr(mapper_module, "integrate_observation", integrate_then_wait)
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        maps: list[MapMsg] = []
+        sub = session.declare_subscriber(keys.map, lambda s: maps.append(decode(s.payload.to_bytes(), MapMsg)))
+        svc = MapperService(ServiceContext("mapper", "t1", {}, ExplorationConfig(), client, {"restore_timeout_s": 0.2}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: any(True for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5) if r.ok), HANG_DEADLINE_S, "the mapper's token")
+            session.put(keys.clock, encode(ClockMsg(0, 0.0, GridGeometry(0.1, (40, 60)))))
+            scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
+            session.put(keys.scan, encode(ScanMsg(0, scan, Pose2D(1.5, 2.0, 0.0), 7)))
+            wait_for(lambda: maps, HANG_DEADLINE_S, "the map of step 0")
+            session.put(keys.scan, encode(ScanMsg(1, scan, Pose2D(4.5, 2.0, 0.0), 7)))
+            assert integrated.wait(HANG_DEADLINE_S), "the second scan was never integrated"
+            replies = [r.ok.payload.to_bytes() for r in session.get(keys.map, timeout=HANG_DEADLINE_S) if r.ok]
+            assert len(replies) == 1
+            late = decode(replies[0], MapMsg)  # a map the receiver refuses fails here
+            assert (late.step, late.episode) == (0, 7)
+            np.testing.assert_array_equal(late.grid, maps[0].grid)  # not scan 1's cells under step 0
+            release.set()
+            wait_for(lambda: len(maps) == 2, HANG_DEADLINE_S, "the map of step 1")
+            late = next(decode(r.ok.payload.to_bytes(), MapMsg) for r in session.get(keys.map, timeout=HANG_DEADLINE_S) if r.ok)
+            assert late.step == 1 and np.array_equal(late.grid, maps[1].grid)
+        finally:
+            release.set()
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+    assert not thread.is_alive()
+
+
+def test_a_policy_server_counts_payloads_on_keys_of_no_robot_under_their_topic_not_one_entry_per_key_made_up():
+    """A policy serving every robot subscribes to ``cso/*/frontiers``, so it hears keys of any robot chunk: a rejection
+    of a key that names no valid robot was counted under the key itself, and every key a sender made up added an entry
+    to its ``rejected`` and to its status, without bound. They are counted under the topic; a valid robot is still
+    served after them."""
+    from cso_runtime.messages import GoalMsg, frontiers_from_observation
+    from tests.test_messages import _observation
+    from tests.test_runtime import shared_policy_server
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        goals: list[GoalMsg] = []
+        sub = session.declare_subscriber(RobotKeys("a").goal, lambda s: goals.append(decode(s.payload.to_bytes(), GoalMsg)))
+        with shared_policy_server(session, client) as svc:
+            try:
+                made_up = 200
+                for i in range(made_up):
+                    session.put(f"cso/not.a.robot{i}/frontiers", b"anything")
+                payload = encode(frontiers_from_observation(0, "no_goal", _observation(), 1.0))
+                session.put(RobotKeys("a").frontiers, payload)
+                wait_for(lambda: goals, HANG_DEADLINE_S, "robot a's goal after the made-up keys")
+                replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(RobotKeys("a").service_status("policy"), timeout=HANG_DEADLINE_S) if r.ok]
+                assert replies and replies[0].rejected == {"frontiers": made_up}, replies
+                assert svc.rejected == {"frontiers": made_up}
+            finally:
+                sub.undeclare()
+
+
+def test_a_policy_server_with_many_stale_robots_still_sends_a_status_that_decodes():
+    """A policy serving every robot names each robot it does not command in its status's reason: past the schema's 4096
+    characters (40 robots of long ids gone quiet) its whole status was refused by every reader, and ``status`` showed
+    the policy as not answering. The reason is clipped to fit."""
+    from cso_runtime.messages import MAX_TEXT_CHARS, FrontiersMsg, frontiers_from_observation
+    from services.policy import PolicyService
+    from tests.test_messages import _observation
+
+    policy, _ = _service(PolicyService, lockstep=False, params={"serve_all_robots": True})
+    decision = decode(encode(frontiers_from_observation(0, "no_goal", _observation(), 1.0)), FrontiersMsg)
+    now_s = time.monotonic()
+    robots = [f"robot{i:02d}" + "x" * 57 for i in range(40)]
+    for robot in robots:
+        policy.on_message(robot, "frontiers", decision, now_s)
+    policy.on_tick(now_s + 2 * policy.params.stale_after_s)
+    assert policy.state == "stale" and len(policy.reason) > MAX_TEXT_CHARS
+    status = decode(encode(policy.status_msg()), ServiceStatusMsg)
+    assert status.state == "stale" and len(status.reason) == MAX_TEXT_CHARS and status.reason.endswith("…")
+    assert status.reason.startswith(policy.reason[:100])
