@@ -41,8 +41,8 @@ SETUP_COLUMNS = ("sensor_fov_deg", "sim", "cell_size_m", "max_steps")
 """``episodes.csv``'s columns of what an episode ran with beyond its method, plan and seed: the sensor's field of view
 (degrees), the simulator (``2d``, ``mujoco``; empty on a real robot), the plan's cell size (m: ``--m-per-px`` for a
 PNG plan) and the step limit (``episode.max_steps``: an episode cut at 40 steps has the m2/step of its first steps,
-the most efficient, and beat one run to coverage). Episodes of one plan that differ in one of them do not measure the
-methods alone: ``compare`` warns (``mixed_setups_said``). Files of an eval before these columns have none
+the most efficient, and beat one run to coverage). Episodes of one plan (one scene, as compare pairs them) that differ
+in one of them do not measure the methods alone: ``compare`` warns (``mixed_setups_said``). Files of an eval before these columns have none
 (``file_setup`` reads their summary.json)."""
 MIN_SCENES = 3
 """Fewer shared scenes than this give no comparison (an interval needs a few). Plans are counted: the seeds of one plan
@@ -309,13 +309,15 @@ def setup_value(value: Any) -> str:
 
 
 def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[str] = ()) -> list[str]:
-    """What ``compare`` says of ``files`` (read already: whole ``episodes.csv`` files) whose episodes of one plan (a
-    map of one label) ran with different ``SETUP_COLUMNS``: a warning per column, naming its values, their files and
-    the plans; and a note per file that says none of them (an eval before the columns, no summary.json beside it)
-    where another file does, as its episodes cannot be checked. [] where nothing differs or nothing is known."""
+    """What ``compare`` says of ``files`` (read already: whole ``episodes.csv`` files) whose episodes of one plan ran
+    with different ``SETUP_COLUMNS``: a warning per column, naming its values, their files and the plans; and a note
+    per file that says none of them (an eval before the columns, no summary.json beside it) where another file does,
+    as its episodes cannot be checked. [] where nothing differs or nothing is known. A plan is a scene as compare
+    pairs episodes (``SceneKey``: a map of one label, of one traversable area): the plans of one name at two cell sizes
+    (``easy=A_0.05 easy=A_0.1``) are two, whose episodes are never paired with each other's."""
     excluded = set(exclude_maps)
-    seen: dict[str, dict[tuple[str, str], dict[str, list[Path]]]] = {c: defaultdict(dict) for c in SETUP_COLUMNS}
-    """column -> (label, map) -> value -> the files that ran the plan with it."""
+    seen: dict[str, dict[tuple[str, str, str], dict[str, list[Path]]]] = {c: defaultdict(dict) for c in SETUP_COLUMNS}
+    """column -> (label, map, traversable area) -> value -> the files that ran the plan with it."""
     unknown: list[Path] = []
     for label, path in files:
         with Path(path).open(newline="", encoding="utf-8") as fh:
@@ -329,7 +331,7 @@ def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[
                     value = setup_value(row[column]) if row.get(column) else fallback.get(column)
                     if value is not None:
                         said = True
-                        holders = seen[column][(label, row["map"])].setdefault(value, [])
+                        holders = seen[column][(label, row["map"], str(row.get("traversable_area_m2", "")))].setdefault(value, [])
                         if Path(path) not in holders:
                             holders.append(Path(path))
             if not said:
@@ -344,7 +346,7 @@ def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[
             for value, holders in by_value.items():
                 known = values.setdefault(value, [])
                 known += [h for h in holders if h not in known]
-        names = sorted({plan for _, plan in mixed})
+        names = sorted({plan for _, plan, _ in mixed})
         shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
         lines.append(
             f"warning: the same plans ran with different {column}: "
