@@ -136,6 +136,12 @@ MARKDOWN_HEADER = (
 CSV_FIELDS = tuple(f.name for f in fields(PairedComparison))
 
 
+def scene_key(row: Mapping[str, Any], label: str = "") -> SceneKey:
+    """An ``episodes.csv`` row's scene (``SceneKey``): what ``compare`` pairs episodes by, and ``benchmarks/tables.py``
+    pools them by. Without its seed (``[:4]``), the plan, whose seeds the bootstrap resamples together."""
+    return (label, str(row["map"]), str(row["scale"]), str(row["traversable_area_m2"]), str(row["seed"]))
+
+
 def efficiency_by_scene(episodes: Iterable[Mapping[str, Any]], label: str = "", into: EfficiencyTable | None = None) -> EfficiencyTable:
     """Efficiency per method, scale and scene from ``episodes.csv`` rows (or ``eval``'s own rows). A later
     row of the same method and scene replaces an earlier one; rows without a finite efficiency are left out."""
@@ -148,8 +154,7 @@ def efficiency_by_scene(episodes: Iterable[Mapping[str, Any]], label: str = "", 
             raise ValueError(f"{row.get('method')} on {row.get('map')}: efficiency {value!r} is not a number") from None
         if not math.isfinite(efficiency):
             continue
-        scene = (label, str(row["map"]), str(row["scale"]), str(row["traversable_area_m2"]), str(row["seed"]))
-        table.setdefault((str(row["method"]), str(row["scale"])), {})[scene] = efficiency
+        table.setdefault((str(row["method"]), str(row["scale"])), {})[scene_key(row, label)] = efficiency
     return table
 
 
@@ -316,8 +321,8 @@ def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[
     pairs episodes (``SceneKey``: a map of one label, of one traversable area): the plans of one name at two cell sizes
     (``easy=A_0.05 easy=A_0.1``) are two, whose episodes are never paired with each other's."""
     excluded = set(exclude_maps)
-    seen: dict[str, dict[tuple[str, str, str], dict[str, list[Path]]]] = {c: defaultdict(dict) for c in SETUP_COLUMNS}
-    """column -> (label, map, traversable area) -> value -> the files that ran the plan with it."""
+    seen: dict[str, dict[tuple[str, ...], dict[str, list[Path]]]] = {c: defaultdict(dict) for c in SETUP_COLUMNS}
+    """column -> plan (``scene_key`` without the seed) -> value -> the files that ran the plan with it."""
     unknown: list[Path] = []
     for label, path in files:
         with Path(path).open(newline="", encoding="utf-8") as fh:
@@ -331,7 +336,7 @@ def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[
                     value = setup_value(row[column]) if row.get(column) else fallback.get(column)
                     if value is not None:
                         said = True
-                        holders = seen[column][(label, row["map"], str(row.get("traversable_area_m2", "")))].setdefault(value, [])
+                        holders = seen[column][scene_key(row, label)[:4]].setdefault(value, [])
                         if Path(path) not in holders:
                             holders.append(Path(path))
             if not said:
@@ -346,7 +351,7 @@ def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[
             for value, holders in by_value.items():
                 known = values.setdefault(value, [])
                 known += [h for h in holders if h not in known]
-        names = sorted({plan for _, plan, _ in mixed})
+        names = sorted({plan[1] for plan in mixed})
         shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
         lines.append(
             f"warning: the same plans ran with different {column}: "
