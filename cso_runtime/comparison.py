@@ -42,7 +42,8 @@ SETUP_COLUMNS = ("sensor_fov_deg", "sim", "cell_size_m", "max_steps")
 (degrees), the simulator (``2d``, ``mujoco``; empty on a real robot), the plan's cell size (m: ``--m-per-px`` for a
 PNG plan) and the step limit (``episode.max_steps``: an episode cut at 40 steps has the m2/step of its first steps,
 the most efficient, and beat one run to coverage). Episodes of one plan (one scene, as compare pairs them) that differ
-in one of them do not measure the methods alone: ``compare`` warns (``mixed_setups_said``). Files of an eval before these columns have none
+in one of them do not measure the methods alone: ``compare`` warns (``mixed_setups_said``; of step limits where an
+episode of the plan took as many steps as the lowest: one that ended before every limit ends so under any). Files of an eval before these columns have none
 (``file_setup`` reads their summary.json)."""
 MIN_SCENES = 3
 """Fewer shared scenes than this give no comparison (an interval needs a few). Plans are counted: the seeds of one plan
@@ -305,6 +306,15 @@ def file_setup(path: Path) -> dict[str, str]:
     return {column: setup_value(value) for column, value in known.items() if value not in (None, "")}
 
 
+def _number(value: Any) -> float:
+    """An ``episodes.csv`` cell as a number; inf where it holds none (empty, or not a number: unknown, so the largest)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return math.inf
+    return number if not math.isnan(number) else math.inf
+
+
 def setup_value(value: Any) -> str:
     """A ``SETUP_COLUMNS`` cell as one spelling: ``180`` for 180.0 and "180.0", the text of any other."""
     try:
@@ -323,6 +333,8 @@ def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[
     excluded = set(exclude_maps)
     seen: dict[str, dict[tuple[str, ...], dict[str, list[Path]]]] = {c: defaultdict(dict) for c in SETUP_COLUMNS}
     """column -> plan (``scene_key`` without the seed) -> value -> the files that ran the plan with it."""
+    longest: dict[tuple[str, ...], float] = {}
+    """plan -> the most steps an episode of it took (inf where one does not say)."""
     unknown: list[Path] = []
     for label, path in files:
         with Path(path).open(newline="", encoding="utf-8") as fh:
@@ -332,18 +344,28 @@ def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[
             for row in whole_rows(reader):
                 if row["map"] in excluded:
                     continue
+                plan = scene_key(row, label)[:4]
+                longest[plan] = max(longest.get(plan, 0.0), _number(row.get("steps")))
                 for column in SETUP_COLUMNS:
                     value = setup_value(row[column]) if row.get(column) else fallback.get(column)
                     if value is not None:
                         said = True
-                        holders = seen[column][scene_key(row, label)[:4]].setdefault(value, [])
+                        holders = seen[column][plan].setdefault(value, [])
                         if Path(path) not in holders:
                             holders.append(Path(path))
             if not said:
                 unknown.append(Path(path))
+
+    def differs(column: str, plan: tuple[str, ...], values: dict[str, list[Path]]) -> bool:
+        """Whether the plan's episodes ran with different ``column``s that can change them: step limits only where one
+        of its episodes took as many steps as the lowest (an episode that ended before every limit ends so under any)."""
+        if len(values) < 2:
+            return False
+        return column != "max_steps" or longest[plan] >= min(_number(v) for v in values)
+
     lines = []
     for column, plans in seen.items():
-        mixed = {plan: values for plan, values in plans.items() if len(values) > 1}
+        mixed = {plan: values for plan, values in plans.items() if differs(column, plan, values)}
         if not mixed:
             continue
         values: dict[str, list[Path]] = {}
