@@ -31,6 +31,7 @@ from cso_runtime.comparison import (
     efficiency_by_scene,
     format_interval,
     labelled,
+    scene_key,
     whole_rows,
 )
 from cso_runtime.evaluation import METRICS, summarize
@@ -83,9 +84,9 @@ def pooled_rows(files: list[tuple[str, Path]]) -> list[dict[str, Any]]:
             r["map"] = f"{label}/{r['map']}" if label else r["map"]
             for k in METRICS:
                 r[k] = float(r[k]) if r.get(k) not in (None, "") else None
-            # An episode's scene as compare pairs it (comparison.SceneKey): a plan of one name at two cell sizes
+            # An episode's scene as compare pairs it (comparison.scene_key): a plan of one name at two cell sizes
             # (easy=A_0.05 easy=A_0.1) is two plans, even of one scale, not one whose later episode replaces the other.
-            pooled[(r["method"], r["map"], r["scale"], r["traversable_area_m2"], r["seed"])] = r
+            pooled[(r["method"], *scene_key(r))] = r
     return list(pooled.values())
 
 

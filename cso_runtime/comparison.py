@@ -41,8 +41,9 @@ SETUP_COLUMNS = ("sensor_fov_deg", "sim", "cell_size_m", "max_steps")
 """``episodes.csv``'s columns of what an episode ran with beyond its method, plan and seed: the sensor's field of view
 (degrees), the simulator (``2d``, ``mujoco``; empty on a real robot), the plan's cell size (m: ``--m-per-px`` for a
 PNG plan) and the step limit (``episode.max_steps``: an episode cut at 40 steps has the m2/step of its first steps,
-the most efficient, and beat one run to coverage). Episodes of one plan that differ in one of them do not measure the
-methods alone: ``compare`` warns (``mixed_setups_said``). Files of an eval before these columns have none
+the most efficient, and beat one run to coverage). Episodes of one plan (one scene, as compare pairs them) that differ
+in one of them do not measure the methods alone: ``compare`` warns (``mixed_setups_said``; of step limits where an
+episode of the plan took as many steps as the lowest: one that ended before every limit ends so under any). Files of an eval before these columns have none
 (``file_setup`` reads their summary.json)."""
 MIN_SCENES = 3
 """Fewer shared scenes than this give no comparison (an interval needs a few). Plans are counted: the seeds of one plan
@@ -136,6 +137,12 @@ MARKDOWN_HEADER = (
 CSV_FIELDS = tuple(f.name for f in fields(PairedComparison))
 
 
+def scene_key(row: Mapping[str, Any], label: str = "") -> SceneKey:
+    """An ``episodes.csv`` row's scene (``SceneKey``): what ``compare`` pairs episodes by, and ``benchmarks/tables.py``
+    pools them by. Without its seed (``[:4]``), the plan, whose seeds the bootstrap resamples together."""
+    return (label, str(row["map"]), str(row["scale"]), str(row["traversable_area_m2"]), str(row["seed"]))
+
+
 def efficiency_by_scene(episodes: Iterable[Mapping[str, Any]], label: str = "", into: EfficiencyTable | None = None) -> EfficiencyTable:
     """Efficiency per method, scale and scene from ``episodes.csv`` rows (or ``eval``'s own rows). A later
     row of the same method and scene replaces an earlier one; rows without a finite efficiency are left out."""
@@ -148,8 +155,7 @@ def efficiency_by_scene(episodes: Iterable[Mapping[str, Any]], label: str = "", 
             raise ValueError(f"{row.get('method')} on {row.get('map')}: efficiency {value!r} is not a number") from None
         if not math.isfinite(efficiency):
             continue
-        scene = (label, str(row["map"]), str(row["scale"]), str(row["traversable_area_m2"]), str(row["seed"]))
-        table.setdefault((str(row["method"]), str(row["scale"])), {})[scene] = efficiency
+        table.setdefault((str(row["method"]), str(row["scale"])), {})[scene_key(row, label)] = efficiency
     return table
 
 
@@ -300,6 +306,15 @@ def file_setup(path: Path) -> dict[str, str]:
     return {column: setup_value(value) for column, value in known.items() if value not in (None, "")}
 
 
+def _number(value: Any) -> float:
+    """An ``episodes.csv`` cell as a number; inf where it holds none (empty, or not a number: unknown, so the largest)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return math.inf
+    return number if not math.isnan(number) else math.inf
+
+
 def setup_value(value: Any) -> str:
     """A ``SETUP_COLUMNS`` cell as one spelling: ``180`` for 180.0 and "180.0", the text of any other."""
     try:
@@ -309,13 +324,17 @@ def setup_value(value: Any) -> str:
 
 
 def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[str] = ()) -> list[str]:
-    """What ``compare`` says of ``files`` (read already: whole ``episodes.csv`` files) whose episodes of one plan (a
-    map of one label) ran with different ``SETUP_COLUMNS``: a warning per column, naming its values, their files and
-    the plans; and a note per file that says none of them (an eval before the columns, no summary.json beside it)
-    where another file does, as its episodes cannot be checked. [] where nothing differs or nothing is known."""
+    """What ``compare`` says of ``files`` (read already: whole ``episodes.csv`` files) whose episodes of one plan ran
+    with different ``SETUP_COLUMNS``: a warning per column, naming its values, their files and the plans; and a note
+    per file that says none of them (an eval before the columns, no summary.json beside it) where another file does,
+    as its episodes cannot be checked. [] where nothing differs or nothing is known. A plan is a scene as compare
+    pairs episodes (``SceneKey``: a map of one label, of one traversable area): the plans of one name at two cell sizes
+    (``easy=A_0.05 easy=A_0.1``) are two, whose episodes are never paired with each other's."""
     excluded = set(exclude_maps)
-    seen: dict[str, dict[tuple[str, str], dict[str, list[Path]]]] = {c: defaultdict(dict) for c in SETUP_COLUMNS}
-    """column -> (label, map) -> value -> the files that ran the plan with it."""
+    seen: dict[str, dict[tuple[str, ...], dict[str, list[Path]]]] = {c: defaultdict(dict) for c in SETUP_COLUMNS}
+    """column -> plan (``scene_key`` without the seed) -> value -> the files that ran the plan with it."""
+    longest: dict[tuple[str, ...], float] = {}
+    """plan -> the most steps an episode of it took (inf where one does not say)."""
     unknown: list[Path] = []
     for label, path in files:
         with Path(path).open(newline="", encoding="utf-8") as fh:
@@ -325,18 +344,28 @@ def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[
             for row in whole_rows(reader):
                 if row["map"] in excluded:
                     continue
+                plan = scene_key(row, label)[:4]
+                longest[plan] = max(longest.get(plan, 0.0), _number(row.get("steps")))
                 for column in SETUP_COLUMNS:
                     value = setup_value(row[column]) if row.get(column) else fallback.get(column)
                     if value is not None:
                         said = True
-                        holders = seen[column][(label, row["map"])].setdefault(value, [])
+                        holders = seen[column][plan].setdefault(value, [])
                         if Path(path) not in holders:
                             holders.append(Path(path))
             if not said:
                 unknown.append(Path(path))
+
+    def differs(column: str, plan: tuple[str, ...], values: dict[str, list[Path]]) -> bool:
+        """Whether the plan's episodes ran with different ``column``s that can change them: step limits only where one
+        of its episodes took as many steps as the lowest (an episode that ended before every limit ends so under any)."""
+        if len(values) < 2:
+            return False
+        return column != "max_steps" or longest[plan] >= min(_number(v) for v in values)
+
     lines = []
     for column, plans in seen.items():
-        mixed = {plan: values for plan, values in plans.items() if len(values) > 1}
+        mixed = {plan: values for plan, values in plans.items() if differs(column, plan, values)}
         if not mixed:
             continue
         values: dict[str, list[Path]] = {}
@@ -344,7 +373,7 @@ def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[
             for value, holders in by_value.items():
                 known = values.setdefault(value, [])
                 known += [h for h in holders if h not in known]
-        names = sorted({plan for _, plan in mixed})
+        names = sorted({plan[1] for plan in mixed})
         shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
         lines.append(
             f"warning: the same plans ran with different {column}: "

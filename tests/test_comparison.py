@@ -346,6 +346,51 @@ def test_compare_warns_when_its_files_ran_the_same_plans_under_different_step_li
     assert said.startswith(f"warning: the same plans ran with different max_steps: 300 ({full}), 40 ({old})"), said
 
 
+def test_compare_warns_of_different_step_limits_only_where_an_episode_reached_the_lower_one(tmp_path: Path):
+    """An eval with ``--max-steps 5000`` against one of the default 3000, every episode of both ended by coverage within
+    600 steps: compare warned "their figures compare those too, not the methods alone", though each episode ended as
+    it would have under either limit. Step limits are warned of where an episode of the plan took as many steps as the
+    lowest limit (cut by it, or running past it under the other)."""
+    from cso_runtime.comparison import mixed_setups_said
+
+    def run(folder: str, method: str, max_steps: int, steps: dict[str, int]) -> Path:
+        (tmp_path / folder).mkdir()
+        setup = {"sensor_fov_deg": 180.0, "sim": "2d", "cell_size_m": 0.05, "max_steps": max_steps}
+        episodes = [{**r, **setup, "steps": steps[r["map"]]} for r in rows(method, "large", {"a": 1.0, "b": 1.1, "c": 0.9})]
+        return write_episodes_csv(tmp_path / folder / "episodes.csv", episodes, FIELDS + ("steps", *setup))
+
+    base = run("base", "greedy-dist", 3000, {"a": 400, "b": 550, "c": 600})
+    longer = run("longer", "cso", 5000, {"a": 380, "b": 500, "c": 590})
+    assert mixed_setups_said([("", base), ("", longer)]) == []
+    past = run("past", "cso", 5000, {"a": 380, "b": 3400, "c": 590})  # b ran past 3000 steps: greedy-dist's limit would have cut it
+    (said,) = mixed_setups_said([("", base), ("", past)])
+    assert said.startswith(f"warning: the same plans ran with different max_steps: 3000 ({base}), 5000 ({past}) on 1 plan (b)"), said
+
+
+def test_compare_does_not_warn_of_a_plan_run_at_two_cell_sizes_by_every_method(tmp_path: Path):
+    """``compare easy=A_0.05 easy=A_0.1`` (BENCHMARKS.md pools the Dungeon plans so, as ``tables.py`` does): a plan of one
+    name at two cell sizes is two scenes (two traversable areas), each method's episodes paired at one cell size only,
+    yet compare warned "the same plans ran with different cell_size_m ... their figures compare those too" (and of a
+    step limit or a sensor that differed between the two evals). Setups are compared within a scene, as compare pairs
+    episodes; methods of one scene that differ are still warned of."""
+    from cso_runtime.comparison import mixed_setups_said
+
+    def run(folder: str, cell_m: float, fov: float = 180.0, methods: tuple[str, ...] = ("greedy-dist", "cso")) -> Path:
+        (tmp_path / folder).mkdir()
+        setup = {"sensor_fov_deg": fov, "sim": "2d", "cell_size_m": cell_m, "max_steps": 3000 if cell_m == 0.05 else 1500}
+        episodes = [
+            {**r, **setup, "traversable_area_m2": 100.0 * (cell_m / 0.1) ** 2, "scale": "large" if cell_m == 0.1 else "middle"}
+            for m in methods for r in rows(m, "large", {"a": 1.0, "b": 1.1, "c": 0.9})
+        ]
+        return write_episodes_csv(tmp_path / folder / "episodes.csv", episodes, FIELDS + tuple(setup))
+
+    fine, coarse = run("fine", 0.05), run("coarse", 0.1)
+    assert mixed_setups_said([("easy", fine), ("easy", coarse)]) == []
+    ring = run("ring", 0.1, fov=360.0, methods=("cso",))  # cso again on the coarse scenes, with another sensor
+    (said,) = mixed_setups_said([("easy", fine), ("easy", coarse), ("easy", ring)])
+    assert said.startswith(f"warning: the same plans ran with different sensor_fov_deg: 180 ({coarse}), 360 ({ring}) on 3 plans (a, b, c)"), said
+
+
 def test_compare_says_why_a_baseline_with_episodes_has_none_to_compare(tmp_path: Path):
     """``--baseline greedy-dist`` whose episodes have no m2/step (episodes of no step: the empty cell, or a value that
     is not finite), or are all on the maps ``--exclude`` leaves out, was told "has no episodes in these files; their

@@ -716,3 +716,30 @@ def test_no_robot_the_config_takes_drives_through_a_one_cell_wall(backend: str, 
     for _ in range(int(round(4.0 / control_period_s))):
         sim.step(VelocityCommand(max_linear_mps, 0.0))
     assert 2.7 < sim.true_pose().x_m < 3.0 - 0.1  # it drove up to the wall, and stopped at it
+
+
+@pytest.mark.parametrize(
+    ("resolution_m", "start_x_m", "control_period_s", "max_linear_mps"),
+    [(0.02, 2.99, 0.25, 1.0), (0.02, 2.995, 0.25, 1.0), (0.05, 2.98, 1.0, 5.0)],
+)
+def test_a_2d_robot_that_starts_against_a_thin_wall_does_not_drive_through_it(resolution_m: float, start_x_m: float, control_period_s: float, max_linear_mps: float) -> None:
+    """A robot in contact (a start on a free cell next to a wall, closer than the disc's radius) may move where its
+    clearance does not shrink: a substep longer than the wall's thickness plus twice that clearance ended beyond the
+    wall, as clear of it as the start, and was taken. The LIMO's own 5 cm substeps crossed a 2 cm cell's wall from 1 cm
+    (x 4.99 m after 2 s). The robot stays at the wall, and can still slide along it and back away."""
+    from cso_runtime.simulator import KinematicSimulator
+
+    cols = int(round(6.0 / resolution_m))
+    free = np.zeros((int(round(4.0 / resolution_m)), cols), dtype=bool)
+    free[1:-1, 1:-1] = True
+    free[:, cols // 2] = False  # a wall one cell thick, from x 3.0 m
+    plan = FloorPlan("wall", free, resolution_m, Pose2D(start_x_m, 2.0, 0.0))
+    robot = RobotConfig(control_period_s=control_period_s, max_linear_mps=max_linear_mps)
+    sim = KinematicSimulator(plan, SensorConfig(), robot, seed=0)
+    for _ in range(int(round(2.0 / control_period_s))):
+        sim.step(VelocityCommand(max_linear_mps, 0.0))
+    assert sim.true_pose().x_m == start_x_m and sim.collisions > 0  # it stayed where it touched the wall
+    for yaw_rad, moved in ((math.pi / 2, (0.0, 0.1)), (math.pi, (-0.1, 0.0))):  # along the wall, and away from it
+        sim = KinematicSimulator(dataclasses.replace(plan, start=Pose2D(start_x_m, 2.0, yaw_rad)), SensorConfig(), robot, seed=0)
+        sim.step(VelocityCommand(0.1 / control_period_s, 0.0))
+        assert (sim.true_pose().x_m, sim.true_pose().y_m) == pytest.approx((start_x_m + moved[0], 2.0 + moved[1]), abs=1e-9)
