@@ -3064,3 +3064,31 @@ def test_checkpoints_record_their_frontier_settings_and_older_ones_load_as_train
     assert check_weights("cso", frontier=FrontierConfig(entropy_window_m=4.0)) == []
     with pytest.raises(CheckpointError, match=r"trained with frontier.entropy_window_m 4 m, this run's is 2 m"):
         check_weights("cso", frontier=FrontierConfig())
+
+
+def test_the_window_a_refusal_and_trains_eval_command_give_runs_the_weights(tmp_path, monkeypatch):
+    """The ``--set`` a refusal names, and the ``eval`` command ``train`` prints at its end, wrote the entropy window with
+    ``:g``'s six digits: weights trained with ``entropy_window_m=2.1234567`` were told to run with
+    ``--set frontier.entropy_window_m=2.12346``, which is refused in turn, and ``2.0000001`` against 2 was said as "trained
+    with 2 m, this run's is 2 m". Each value is written so that it reads back as itself; a short one stays short."""
+    from cso_runtime.config import FrontierConfig
+    from cso_runtime.learned.ppo import matching_eval_command, save_weights
+    from cso_runtime.learned.registry import CheckpointError, check_weights
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+
+    unset_weights_env(monkeypatch)
+    odd = Args(variant="cso", entropy_window_m=2.1234567, out_dir=str(tmp_path / "odd"))
+    save_weights(tmp_path / "odd", build_model(odd, torch.device("cpu")), odd, {"ppo_decisions": 0})
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(tmp_path / "odd"))
+    words = shlex.split(matching_eval_command(odd))
+    window = float(words[words.index("--set") + 1].split("=", 1)[1])
+    assert check_weights("cso", frontier=FrontierConfig(entropy_window_m=window)) == []  # the command train prints runs them
+    with pytest.raises(CheckpointError) as refused:
+        check_weights("cso", frontier=FrontierConfig(entropy_window_m=2.0))
+    said = str(refused.value)
+    assert "trained with frontier.entropy_window_m 2.1234567 m, this run's is 2 m" in said, said
+    suggested = float(re.search(r"run with --set frontier.entropy_window_m=(\S+) ", said).group(1))
+    assert check_weights("cso", frontier=FrontierConfig(entropy_window_m=suggested)) == []  # the way out it names runs them
+    unset_weights_env(monkeypatch)
+    with pytest.raises(CheckpointError, match=re.escape("trained with frontier.entropy_window_m 2 m, this run's is 2.0000001 m")):
+        check_weights("cso", sensor=SensorConfig(), frontier=FrontierConfig(entropy_window_m=2.0000001))

@@ -71,6 +71,7 @@ from cso_runtime.learned.registry import (
     load_checkpoint,
     save_checkpoint,
     save_whole,
+    setting_text,
     weights_path,
 )
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
@@ -1474,7 +1475,7 @@ def matching_eval_command(args: Args) -> str:
         words += ["--lidar-fov", "360"]
     words += mask_set_flags(mask_settings_changed(trained_mask_settings(dataclasses.asdict(args)), MaskConfig()))
     if VARIANTS[args.variant].use_entropy and args.entropy_window_m != FrontierConfig().entropy_window_m:  # eval refuses another
-        words += ["--set", f"frontier.entropy_window_m={args.entropy_window_m:g}"]
+        words += ["--set", f"frontier.entropy_window_m={setting_text(args.entropy_window_m)}"]
     return shlex.join(words)
 
 

@@ -145,6 +145,15 @@ def trained_frontier(ckpt: dict[str, Any], graph: GraphConfig) -> FrontierConfig
     return dataclasses.replace(before, **{k: float(v) for k, v in record.items() if k in known and isinstance(v, (int, float))})
 
 
+def setting_text(value: float) -> str:
+    """``value`` as a message and a ``--set`` write it: ``:g``'s short form (``2``, ``0.3``) where it reads back as
+    ``value``, else the shortest text that does (``2.1234567``, ``2.0000001``), so that the ``--set`` a refusal or
+    ``train``'s closing ``eval`` command names gives the very value compared (``input_mismatches``), not one that is
+    refused in turn."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(float(value))
+
+
 @dataclasses.dataclass(frozen=True)
 class InputMismatch:
     """One run setting of ``INPUT_CHECKS`` that differs from the weights' training."""
@@ -157,13 +166,14 @@ class InputMismatch:
 
     def said(self, name: str, path: Path) -> str:
         """One line naming the parameter, both values and how to proceed."""
-        matching = f"--set frontier.{self.key}={self.trained:g} (up: --set exploration.frontier.{self.key}={self.trained:g})"
-        head = f"the weights of {name} ({path}) were trained with frontier.{self.key} {self.trained:g} m, this run's is {self.run:g} m"
+        trained, run = setting_text(self.trained), setting_text(self.run)
+        matching = f"--set frontier.{self.key}={trained} (up: --set exploration.frontier.{self.key}={trained})"
+        head = f"the weights of {name} ({path}) were trained with frontier.{self.key} {trained} m, this run's is {run} m"
         if self.key == "entropy_window_m":
             return (
                 f"{head}: the network's entropy input would be about {self.run / self.trained:g} times what it learned on;"
-                f" run with {matching}, or with weights trained with a {self.run:g} m window"
-                f" (cso-runtime train --config configs/train.yaml --set entropy_window_m={self.run:g})"
+                f" run with {matching}, or with weights trained with a {run} m window"
+                f" (cso-runtime train --config configs/train.yaml --set entropy_window_m={run})"
             )
         return f"{head}: its candidate goals would be other frontier clusters than it learned to choose among; {matching} runs them as trained"
 
