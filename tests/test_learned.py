@@ -3092,3 +3092,22 @@ def test_the_window_a_refusal_and_trains_eval_command_give_runs_the_weights(tmp_
     unset_weights_env(monkeypatch)
     with pytest.raises(CheckpointError, match=re.escape("trained with frontier.entropy_window_m 2 m, this run's is 2.0000001 m")):
         check_weights("cso", sensor=SensorConfig(), frontier=FrontierConfig(entropy_window_m=2.0000001))
+
+
+def test_a_resume_of_a_checkpoint_from_before_the_window_setting_refuses_another_window(tmp_path):
+    """A training checkpoint written before ``entropy_window_m`` was a setting holds no such field in its ``args``, and
+    a field a checkpoint lacks is not compared: ``train --resume OLD/checkpoint.pt --set entropy_window_m=4`` went on
+    training, with a 4 m window, a network that had learned its entropy input over 2 m (the only window ``train`` had),
+    and saved it as trained with 4 m. It is refused as a resume of a run that recorded its window is."""
+    common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False}
+    train(Args(total_decisions=8, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    checkpoint = tmp_path / "checkpoint.pt"
+    ckpt = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    recorded = dict(ckpt["args"])
+    del ckpt["args"]["entropy_window_m"]  # as written before the setting
+    torch.save(ckpt, tmp_path / "old.pt")
+    for resumed in (checkpoint, tmp_path / "old.pt"):
+        with pytest.raises(ValueError, match=re.escape("changes the recipe of the run it continues (entropy_window_m 2.0 -> 4.0)")):
+            check_training_inputs(Args(**{**common, "out_dir": str(tmp_path / "other")}, total_decisions=16, entropy_window_m=4.0, resume=str(resumed)))
+        check_training_inputs(Args(**{**common, "out_dir": str(tmp_path / "other")}, total_decisions=16, resume=str(resumed)))  # its own window goes on
+    assert recorded["entropy_window_m"] == 2.0
