@@ -3111,3 +3111,22 @@ def test_a_resume_of_a_checkpoint_from_before_the_window_setting_refuses_another
             check_training_inputs(Args(**{**common, "out_dir": str(tmp_path / "other")}, total_decisions=16, entropy_window_m=4.0, resume=str(resumed)))
         check_training_inputs(Args(**{**common, "out_dir": str(tmp_path / "other")}, total_decisions=16, resume=str(resumed)))  # its own window goes on
     assert recorded["entropy_window_m"] == 2.0
+
+
+def test_an_env_whose_graph_and_episodes_have_other_entropy_windows_is_refused(tmp_path):
+    """The env counts I over ``exploration.frontier.entropy_window_m`` and its graph divides it by
+    ``GraphConfig.entropy_window_m``: two settings of one window. ``EnvConfig(graph=load_checkpoint(path)[1])`` (the
+    docs' way to run other weights in the env) of weights trained with ``train --set entropy_window_m=4`` counted I over
+    2 m and divided it by 4: the network read half the entropy it learned on, without a word. An env whose two windows
+    differ is refused, naming both; ``train``'s own env (``Args.env_config``) counts I over its ``entropy_window_m``."""
+    from cso_runtime.config import ExplorationConfig, FrontierConfig
+
+    wide = GraphConfig(use_cluster_size=True, entropy_window_m=4.0)  # a checkpoint's graph, trained with 4 m
+    with pytest.raises(ValueError, match=re.escape("GraphConfig.entropy_window_m 4 m, exploration.frontier.entropy_window_m 2 m")):
+        ExplorationEnv([rooms_plan(2)], EnvConfig(graph=wide))
+    ExplorationEnv([rooms_plan(2)], EnvConfig(graph=dataclasses.replace(wide, use_entropy=False)))  # reads no I: any window
+    agreed = EnvConfig(graph=wide, exploration=dataclasses.replace(ExplorationConfig(), frontier=FrontierConfig(entropy_window_m=4.0)), max_steps=200)
+    for config in (agreed, Args(variant="cso", entropy_window_m=4.0).env_config()):
+        env = ExplorationEnv([rooms_plan(2)], config)
+        env.reset(seed=0)
+        assert env.explorer is not None and env.explorer.builder.frontier_config.entropy_window_m == 4.0

@@ -50,6 +50,7 @@ from cso_runtime.config import (
     check_torch_device,
     frontier_bounds,
     map_length,
+    setting_text,
 )
 from cso_runtime.current_run import folder_lock
 from cso_runtime.doctor import cpu_name
@@ -72,7 +73,6 @@ from cso_runtime.learned.registry import (
     load_checkpoint,
     save_checkpoint,
     save_whole,
-    setting_text,
     weights_path,
 )
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from cso_runtime.config import FrontierConfig, MaskConfig, SensorConfig
+from cso_runtime.config import FrontierConfig, MaskConfig, SensorConfig, setting_text
 from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph, frontier_count
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_file_refusal, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
@@ -143,15 +143,6 @@ def trained_frontier(ckpt: dict[str, Any], graph: GraphConfig) -> FrontierConfig
         return before
     known = {f.name for f in dataclasses.fields(FrontierConfig)}
     return dataclasses.replace(before, **{k: float(v) for k, v in record.items() if k in known and isinstance(v, (int, float))})
-
-
-def setting_text(value: float) -> str:
-    """``value`` as a message and a ``--set`` write it: ``:g``'s short form (``2``, ``0.3``) where it reads back as
-    ``value``, else the shortest text that does (``2.1234567``, ``2.0000001``), so that the ``--set`` a refusal or
-    ``train``'s closing ``eval`` command names gives the very value compared (``input_mismatches``), not one that is
-    refused in turn."""
-    short = f"{value:g}"
-    return short if float(short) == value else repr(float(value))
 
 
 @dataclasses.dataclass(frozen=True)
