@@ -3130,3 +3130,33 @@ def test_an_env_whose_graph_and_episodes_have_other_entropy_windows_is_refused(t
         env = ExplorationEnv([rooms_plan(2)], config)
         env.reset(seed=0)
         assert env.explorer is not None and env.explorer.builder.frontier_config.entropy_window_m == 4.0
+
+
+def test_ensemble_of_benchmarks_runs_its_episodes_and_checks_each_members_window(tmp_path, monkeypatch):
+    """benchmarks/eval_ensemble.py replaced ``registry.make_learned_policy`` with a function of the arguments it had
+    before ``sensor`` (and now ``frontier``) were passed: every episode failed (``TypeError: make_ensemble() got an
+    unexpected keyword argument 'sensor'``). It takes them now, and its members, loaded by their paths, are held to the
+    run's frontier settings as the weights it serves are (``registry.input_mismatches``)."""
+    from cso_runtime import cli
+    from cso_runtime.learned import registry
+    from cso_runtime.learned.ppo import save_weights
+
+    unset_weights_env(monkeypatch)
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    monkeypatch.setattr(registry, "make_learned_policy", registry.make_learned_policy)  # main() replaces it: given back after
+    spec = importlib.util.spec_from_file_location("eval_ensemble", Path(__file__).parents[1] / "benchmarks" / "eval_ensemble.py")
+    ensemble = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ensemble)
+    wide = Args(variant="cso", entropy_window_m=4.0, out_dir=str(tmp_path / "wide"))
+    save_weights(tmp_path / "wide", build_model(wide, torch.device("cpu")), wide, {"ppo_decisions": 0})
+    runs = {"shipped": weights_path("cso", SensorConfig.preset("lidar", 360.0)), "wide": tmp_path / "wide" / "cso.pt"}
+    original = registry.make_learned_policy
+    for name, member in runs.items():
+        out = tmp_path / name
+        with pytest.raises(SystemExit):
+            ensemble.main(["--member", str(member), "--", "--method", "cso", "--lidar-fov", "360", "--workers", "1", "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(out)])
+        registry.make_learned_policy = original  # each run its own ensemble
+    summary = json.loads((tmp_path / "shipped" / "summary.json").read_text())
+    assert summary["methods"]["cso"]["episodes"] == 1, summary.get("failures")
+    failed = json.loads((tmp_path / "wide" / "summary.json").read_text())
+    assert "trained with frontier.entropy_window_m 4 m, this run's is 2 m" in json.dumps(failed)
