@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 import torch
 
+from cso_runtime.config import FrontierConfig
 from cso_runtime.learned import registry
 from cso_runtime.learned.graph import build_graph
 from cso_runtime.learned.network import GraphActorCritic, to_torch
@@ -51,8 +53,20 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("the members must share one graph configuration")
     make = registry.make_learned_policy
 
-    def make_ensemble(name, mask_config, seed=None, device="cpu"):
-        return EnsemblePolicy(members, make(name, mask_config, seed=seed, device=device), seed)
+    def make_ensemble(name, mask_config, seed=None, device="cpu", sensor=None, frontier=None):
+        # As make_learned_policy is called (make_policy passes the run's sensor and frontier settings); the members,
+        # loaded by their paths, are held to the run's frontier settings as the weights served are.
+        base = make(name, mask_config, seed=seed, device=device, sensor=sensor, frontier=frontier)
+        use_entropy = registry.VARIANTS[name].use_entropy
+        refused = [
+            mismatch.said(name, Path(path))
+            for path, (_, graph, ckpt) in zip(args.member, loaded, strict=True)
+            for mismatch in registry.input_mismatches(registry.trained_frontier(ckpt, graph), frontier or FrontierConfig(), use_entropy)
+            if mismatch.refused
+        ]
+        if refused:
+            raise registry.CheckpointError("; ".join(refused))
+        return EnsemblePolicy(members, base, seed)
 
     registry.make_learned_policy = make_ensemble
     from cso_runtime.cli import app  # noqa: PLC0415

@@ -1276,6 +1276,15 @@ def yaml_text(value: Any) -> str:
     return text.removesuffix("...").strip()
 
 
+def setting_text(value: float) -> str:
+    """A number as a message and a ``--set`` write it: ``:g``'s short form (``2``, ``0.3``) where it reads back as
+    ``value``, else the shortest text that does (``2.1234567``, ``2.0000001``), so that the ``--set`` a refusal or
+    ``train``'s closing ``eval`` command names (``learned.registry.InputMismatch``, ``learned.ppo.matching_eval_command``)
+    gives the very value compared, not one that is refused in turn, and two values that differ never read alike."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(float(value))
+
+
 def set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
     """Set ``a.b.c`` in nested mappings (``--set services.sim.real_time_factor=4``), making the mappings on the
     way (a key written as ``mapper:`` with no value is an empty one); a value in the way is an error."""

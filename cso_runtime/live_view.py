@@ -127,11 +127,15 @@ def writes_to_a_terminal(console: Console) -> bool:
 def redraws_in_place(console: Console) -> bool:
     """Whether a display that redraws itself (``eval``'s and ``train``'s bars, ``status --watch``, ``up``'s live view,
     the count bars) is drawn in place on ``console``: it writes to a terminal (``writes_to_a_terminal``) that rich draws
-    in place on. Not a dumb one (``TERM=dumb``: Emacs' shell, some IDE consoles) nor one rich is told is no terminal
-    (``TTY_COMPATIBLE=0``, ``FORCE_COLOR`` empty): there rich draws a live display only once, at its end, so a bar kept
-    for such a terminal showed nothing for a whole run (a training of hours), and none of the lines a log gets
-    either. Those get the log's lines; the layout of a table stays a terminal's (``fit_off_a_terminal``)."""
-    return writes_to_a_terminal(console) and console.is_terminal and not console.is_dumb_terminal
+    in place on. Not a dumb one (``TERM=dumb``: Emacs' shell, some IDE consoles), one rich is told is no terminal
+    (``TTY_COMPATIBLE=0``, ``FORCE_COLOR`` empty) nor one it is told is not interactive (``TTY_INTERACTIVE=0``, rich's
+    ``is_interactive``: its live display moves the cursor back to redraw only there, and draws nothing before its end
+    elsewhere): there rich draws a live display only once, at its end, so a bar kept for such a terminal showed nothing
+    for a whole run (a training of hours), and none of the lines a log gets either. Those get the log's lines; the
+    layout of a table stays a terminal's (``fit_off_a_terminal``). Rich's own rule (``Live.refresh``, its
+    ``process_renderables``): a refresh draws where ``is_terminal and not is_dumb_terminal``, in place where
+    ``is_interactive``; Jupyter and IDLE are no terminal to its ``is_terminal``."""
+    return writes_to_a_terminal(console) and console.is_terminal and not console.is_dumb_terminal and console.is_interactive
 
 
 def fit_off_a_terminal(console: Console, *tables: Any) -> Console:

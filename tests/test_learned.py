@@ -3064,3 +3064,99 @@ def test_checkpoints_record_their_frontier_settings_and_older_ones_load_as_train
     assert check_weights("cso", frontier=FrontierConfig(entropy_window_m=4.0)) == []
     with pytest.raises(CheckpointError, match=r"trained with frontier.entropy_window_m 4 m, this run's is 2 m"):
         check_weights("cso", frontier=FrontierConfig())
+
+
+def test_the_window_a_refusal_and_trains_eval_command_give_runs_the_weights(tmp_path, monkeypatch):
+    """The ``--set`` a refusal names, and the ``eval`` command ``train`` prints at its end, wrote the entropy window with
+    ``:g``'s six digits: weights trained with ``entropy_window_m=2.1234567`` were told to run with
+    ``--set frontier.entropy_window_m=2.12346``, which is refused in turn, and ``2.0000001`` against 2 was said as "trained
+    with 2 m, this run's is 2 m". Each value is written so that it reads back as itself; a short one stays short."""
+    from cso_runtime.config import FrontierConfig
+    from cso_runtime.learned.ppo import matching_eval_command, save_weights
+    from cso_runtime.learned.registry import CheckpointError, check_weights
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+
+    unset_weights_env(monkeypatch)
+    odd = Args(variant="cso", entropy_window_m=2.1234567, out_dir=str(tmp_path / "odd"))
+    save_weights(tmp_path / "odd", build_model(odd, torch.device("cpu")), odd, {"ppo_decisions": 0})
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(tmp_path / "odd"))
+    words = shlex.split(matching_eval_command(odd))
+    window = float(words[words.index("--set") + 1].split("=", 1)[1])
+    assert check_weights("cso", frontier=FrontierConfig(entropy_window_m=window)) == []  # the command train prints runs them
+    with pytest.raises(CheckpointError) as refused:
+        check_weights("cso", frontier=FrontierConfig(entropy_window_m=2.0))
+    said = str(refused.value)
+    assert "trained with frontier.entropy_window_m 2.1234567 m, this run's is 2 m" in said, said
+    suggested = float(re.search(r"run with --set frontier.entropy_window_m=(\S+) ", said).group(1))
+    assert check_weights("cso", frontier=FrontierConfig(entropy_window_m=suggested)) == []  # the way out it names runs them
+    unset_weights_env(monkeypatch)
+    with pytest.raises(CheckpointError, match=re.escape("trained with frontier.entropy_window_m 2 m, this run's is 2.0000001 m")):
+        check_weights("cso", sensor=SensorConfig(), frontier=FrontierConfig(entropy_window_m=2.0000001))
+
+
+def test_a_resume_of_a_checkpoint_from_before_the_window_setting_refuses_another_window(tmp_path):
+    """A training checkpoint written before ``entropy_window_m`` was a setting holds no such field in its ``args``, and
+    a field a checkpoint lacks is not compared: ``train --resume OLD/checkpoint.pt --set entropy_window_m=4`` went on
+    training, with a 4 m window, a network that had learned its entropy input over 2 m (the only window ``train`` had),
+    and saved it as trained with 4 m. It is refused as a resume of a run that recorded its window is."""
+    common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False}
+    train(Args(total_decisions=8, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    checkpoint = tmp_path / "checkpoint.pt"
+    ckpt = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    recorded = dict(ckpt["args"])
+    del ckpt["args"]["entropy_window_m"]  # as written before the setting
+    torch.save(ckpt, tmp_path / "old.pt")
+    for resumed in (checkpoint, tmp_path / "old.pt"):
+        with pytest.raises(ValueError, match=re.escape("changes the recipe of the run it continues (entropy_window_m 2.0 -> 4.0)")):
+            check_training_inputs(Args(**{**common, "out_dir": str(tmp_path / "other")}, total_decisions=16, entropy_window_m=4.0, resume=str(resumed)))
+        check_training_inputs(Args(**{**common, "out_dir": str(tmp_path / "other")}, total_decisions=16, resume=str(resumed)))  # its own window goes on
+    assert recorded["entropy_window_m"] == 2.0
+
+
+def test_an_env_whose_graph_and_episodes_have_other_entropy_windows_is_refused(tmp_path):
+    """The env counts I over ``exploration.frontier.entropy_window_m`` and its graph divides it by
+    ``GraphConfig.entropy_window_m``: two settings of one window. ``EnvConfig(graph=load_checkpoint(path)[1])`` (the
+    docs' way to run other weights in the env) of weights trained with ``train --set entropy_window_m=4`` counted I over
+    2 m and divided it by 4: the network read half the entropy it learned on, without a word. An env whose two windows
+    differ is refused, naming both; ``train``'s own env (``Args.env_config``) counts I over its ``entropy_window_m``."""
+    from cso_runtime.config import ExplorationConfig, FrontierConfig
+
+    wide = GraphConfig(use_cluster_size=True, entropy_window_m=4.0)  # a checkpoint's graph, trained with 4 m
+    with pytest.raises(ValueError, match=re.escape("GraphConfig.entropy_window_m 4 m, exploration.frontier.entropy_window_m 2 m")):
+        ExplorationEnv([rooms_plan(2)], EnvConfig(graph=wide))
+    ExplorationEnv([rooms_plan(2)], EnvConfig(graph=dataclasses.replace(wide, use_entropy=False)))  # reads no I: any window
+    agreed = EnvConfig(graph=wide, exploration=dataclasses.replace(ExplorationConfig(), frontier=FrontierConfig(entropy_window_m=4.0)), max_steps=200)
+    for config in (agreed, Args(variant="cso", entropy_window_m=4.0).env_config()):
+        env = ExplorationEnv([rooms_plan(2)], config)
+        env.reset(seed=0)
+        assert env.explorer is not None and env.explorer.builder.frontier_config.entropy_window_m == 4.0
+
+
+def test_ensemble_of_benchmarks_runs_its_episodes_and_checks_each_members_window(tmp_path, monkeypatch):
+    """benchmarks/eval_ensemble.py replaced ``registry.make_learned_policy`` with a function of the arguments it had
+    before ``sensor`` (and now ``frontier``) were passed: every episode failed (``TypeError: make_ensemble() got an
+    unexpected keyword argument 'sensor'``). It takes them now, and its members, loaded by their paths, are held to the
+    run's frontier settings as the weights it serves are (``registry.input_mismatches``)."""
+    from cso_runtime import cli
+    from cso_runtime.learned import registry
+    from cso_runtime.learned.ppo import save_weights
+
+    unset_weights_env(monkeypatch)
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    monkeypatch.setattr(registry, "make_learned_policy", registry.make_learned_policy)  # main() replaces it: given back after
+    spec = importlib.util.spec_from_file_location("eval_ensemble", Path(__file__).parents[1] / "benchmarks" / "eval_ensemble.py")
+    ensemble = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ensemble)
+    wide = Args(variant="cso", entropy_window_m=4.0, out_dir=str(tmp_path / "wide"))
+    save_weights(tmp_path / "wide", build_model(wide, torch.device("cpu")), wide, {"ppo_decisions": 0})
+    runs = {"shipped": weights_path("cso", SensorConfig.preset("lidar", 360.0)), "wide": tmp_path / "wide" / "cso.pt"}
+    original = registry.make_learned_policy
+    for name, member in runs.items():
+        out = tmp_path / name
+        with pytest.raises(SystemExit):
+            ensemble.main(["--member", str(member), "--", "--method", "cso", "--lidar-fov", "360", "--workers", "1", "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(out)])
+        registry.make_learned_policy = original  # each run its own ensemble
+    summary = json.loads((tmp_path / "shipped" / "summary.json").read_text())
+    assert summary["methods"]["cso"]["episodes"] == 1, summary.get("failures")
+    failed = json.loads((tmp_path / "wide" / "summary.json").read_text())
+    assert "trained with frontier.entropy_window_m 4 m, this run's is 2 m" in json.dumps(failed)

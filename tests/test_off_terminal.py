@@ -3,8 +3,8 @@ or a pipe for a terminal then (its ``is_terminal``), so ``eval``'s bar, ``status
 ``train``'s bar and the count bars (``export-bag``, ``animate``, ``scenes``) were redrawn in the file, cursor moves and line erases included.
 Whether the output is a terminal is ``live_view.writes_to_a_terminal``'s word (the output's own ``isatty()``): off one
 each of them writes plain appended lines, coloured as ``FORCE_COLOR`` asks; on one (``TerminalFile``,
-``TerminalRunner``) they are live as before, unless rich draws nothing live there (``TERM=dumb``, ``TTY_COMPATIBLE=0``:
-``live_view.redraws_in_place``), which gets a log's lines too."""
+``TerminalRunner``) they are live as before, unless rich draws nothing live there (``TERM=dumb``, ``TTY_COMPATIBLE=0``,
+``TTY_INTERACTIVE=0``: ``live_view.redraws_in_place``), which gets a log's lines too."""
 
 from __future__ import annotations
 
@@ -184,11 +184,13 @@ def test_no_code_outside_live_view_asks_rich_whether_it_writes_to_a_terminal():
 
 
 DUMB_TERMINALS = [
-    pytest.param({"TERM": "dumb", "FORCE_COLOR": None, "TTY_COMPATIBLE": None, "NO_COLOR": None, "COLUMNS": "120"}, id="TERM=dumb"),
-    pytest.param({"TERM": "xterm-256color", "FORCE_COLOR": None, "TTY_COMPATIBLE": "0", "NO_COLOR": None, "COLUMNS": "120"}, id="TTY_COMPATIBLE=0"),
+    pytest.param({"TERM": "dumb", "FORCE_COLOR": None, "TTY_COMPATIBLE": None, "TTY_INTERACTIVE": None, "NO_COLOR": None, "COLUMNS": "120"}, id="TERM=dumb"),
+    pytest.param({"TERM": "xterm-256color", "FORCE_COLOR": None, "TTY_COMPATIBLE": "0", "TTY_INTERACTIVE": None, "NO_COLOR": None, "COLUMNS": "120"}, id="TTY_COMPATIBLE=0"),
+    pytest.param({"TERM": "xterm-256color", "FORCE_COLOR": None, "TTY_COMPATIBLE": None, "TTY_INTERACTIVE": "0", "NO_COLOR": None, "COLUMNS": "120"}, id="TTY_INTERACTIVE=0"),
 ]
 """A terminal (its ``isatty()`` true) that rich draws no live display on until its end: a dumb one (Emacs' shell, some
-IDE consoles), or one said to be no terminal (TTY_COMPATIBLE=0)."""
+IDE consoles), one said to be no terminal (TTY_COMPATIBLE=0), or one said not to be interactive (TTY_INTERACTIVE=0:
+rich's ``is_interactive``, which alone decides whether a refresh moves the cursor back to redraw)."""
 
 
 @pytest.mark.parametrize("environment", DUMB_TERMINALS)

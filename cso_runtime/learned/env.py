@@ -27,7 +27,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from cso_runtime.config import ExplorationConfig, MaskConfig, check_max_steps, with_nearest
+from cso_runtime.config import ExplorationConfig, MaskConfig, check_max_steps, setting_text, with_nearest
 from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer, best_outcome, nearest_clusters, rollout_outcomes
 from cso_runtime.learned.graph import (
     EDGE_FEATURE_NAMES,
@@ -142,6 +142,22 @@ def observation_layout(config: GraphConfig) -> dict[str, np.ndarray]:
     return observation_of(empty_graph(config), graph_space(config))
 
 
+def entropy_window_problem(config: EnvConfig) -> str:
+    """Why ``config``'s episodes and graph disagree on the entropy window, or empty: the episodes count I over
+    ``exploration.frontier.entropy_window_m`` and the graph divides it by ``GraphConfig.entropy_window_m``, so two
+    windows feed the network I scaled by their ratio (``EnvConfig(graph=load_checkpoint(path)[1])`` of weights trained
+    with another window than the default 2 m). A graph that reads no I (``use_entropy`` false) takes any."""
+    graph_m, frontier_m = config.graph.entropy_window_m, config.exploration.frontier.entropy_window_m
+    if not config.graph.use_entropy or float(graph_m) == float(frontier_m):
+        return ""
+    return (
+        f"EnvConfig: GraphConfig.entropy_window_m {setting_text(graph_m)} m, exploration.frontier.entropy_window_m {setting_text(frontier_m)} m: the"
+        f" network would read I counted over one window and divided by the other (about {frontier_m / graph_m:g} times its"
+        " scale); give both the window the weights were trained with: EnvConfig(graph=graph, exploration=dataclasses.replace("
+        "ExplorationConfig(), frontier=FrontierConfig(entropy_window_m=graph.entropy_window_m)))"
+    )
+
+
 class ExplorationEnv(gym.Env):
     """One goal choice per step over ``KinematicSimulator``; plans drawn from ``plans`` each reset."""
 
@@ -164,6 +180,8 @@ class ExplorationEnv(gym.Env):
         self.render_scale = render_scale
         """Image pixels per map cell along each axis."""
         self.config = config or EnvConfig()
+        if problem := entropy_window_problem(self.config):
+            raise ValueError(problem)
         self._plans_source = plans
         self._plans: list[FloorPlan] | None = None
         self.observation_space: spaces.Dict = graph_space(self.config.graph, robot_index_shape)

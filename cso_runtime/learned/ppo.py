@@ -50,6 +50,7 @@ from cso_runtime.config import (
     check_torch_device,
     frontier_bounds,
     map_length,
+    setting_text,
 )
 from cso_runtime.current_run import folder_lock
 from cso_runtime.doctor import cpu_name
@@ -65,6 +66,7 @@ from cso_runtime.learned.env import (
 from cso_runtime.learned.graph import GraphConfig, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
 from cso_runtime.learned.registry import (
+    TRAINED_FRONTIER_BEFORE_RECORD,
     VARIANTS,
     CheckpointError,
     device_problem,
@@ -572,10 +574,19 @@ def fields_left_at_defaults(given: Mapping[str, Any], recipe: Mapping[str, Any])
     ]
 
 
+ARGS_BEFORE_RECORDED: dict[str, Any] = {"entropy_window_m": TRAINED_FRONTIER_BEFORE_RECORD.entropy_window_m}
+"""Fields of ``Args`` whose value in a run of a version that lacked them is known (``resume_recipe_changes`` compares
+them where a checkpoint's ``args`` lack them): ``entropy_window_m``, the window ``train`` built every episode with
+before it was a setting (``registry.TRAINED_FRONTIER_BEFORE_RECORD``). A resume under another window would go on
+training a network that learned its entropy input over that one."""
+
+
 def resume_recipe_changes(saved: Mapping[str, Any], args: Args) -> list[str]:
     """``"field checkpoint_value -> this_value"`` for each recipe field whose value ``args`` changes from the
-    ``saved`` run's (``dataclasses.asdict`` of its Args; a field it lacks, from an older version, is not compared)."""
+    ``saved`` run's (``dataclasses.asdict`` of its Args; a field it lacks, from an older version, is not compared,
+    unless ``ARGS_BEFORE_RECORDED`` knows its value there)."""
     now = dataclasses.asdict(args)
+    saved = {**ARGS_BEFORE_RECORDED, **saved}
     return [f"{k} {saved[k]!r} -> {now[k]!r}" for k in now if k not in RESUME_MAY_CHANGE and k in saved and saved[k] != now[k]]
 
 
@@ -1474,7 +1485,7 @@ def matching_eval_command(args: Args) -> str:
         words += ["--lidar-fov", "360"]
     words += mask_set_flags(mask_settings_changed(trained_mask_settings(dataclasses.asdict(args)), MaskConfig()))
     if VARIANTS[args.variant].use_entropy and args.entropy_window_m != FrontierConfig().entropy_window_m:  # eval refuses another
-        words += ["--set", f"frontier.entropy_window_m={args.entropy_window_m:g}"]
+        words += ["--set", f"frontier.entropy_window_m={setting_text(args.entropy_window_m)}"]
     return shlex.join(words)
 
 

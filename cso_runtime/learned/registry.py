@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from cso_runtime.config import FrontierConfig, MaskConfig, SensorConfig
+from cso_runtime.config import FrontierConfig, MaskConfig, SensorConfig, setting_text
 from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph, frontier_count
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_file_refusal, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
@@ -157,13 +157,14 @@ class InputMismatch:
 
     def said(self, name: str, path: Path) -> str:
         """One line naming the parameter, both values and how to proceed."""
-        matching = f"--set frontier.{self.key}={self.trained:g} (up: --set exploration.frontier.{self.key}={self.trained:g})"
-        head = f"the weights of {name} ({path}) were trained with frontier.{self.key} {self.trained:g} m, this run's is {self.run:g} m"
+        trained, run = setting_text(self.trained), setting_text(self.run)
+        matching = f"--set frontier.{self.key}={trained} (up: --set exploration.frontier.{self.key}={trained})"
+        head = f"the weights of {name} ({path}) were trained with frontier.{self.key} {trained} m, this run's is {run} m"
         if self.key == "entropy_window_m":
             return (
                 f"{head}: the network's entropy input would be about {self.run / self.trained:g} times what it learned on;"
-                f" run with {matching}, or with weights trained with a {self.run:g} m window"
-                f" (cso-runtime train --config configs/train.yaml --set entropy_window_m={self.run:g})"
+                f" run with {matching}, or with weights trained with a {run} m window"
+                f" (cso-runtime train --config configs/train.yaml --set entropy_window_m={run})"
             )
         return f"{head}: its candidate goals would be other frontier clusters than it learned to choose among; {matching} runs them as trained"
 
