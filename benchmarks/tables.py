@@ -90,6 +90,11 @@ def pooled_rows(files: list[tuple[str, Path]]) -> list[dict[str, Any]]:
     return list(pooled.values())
 
 
+def no_episode(files: list[tuple[str, Path]]) -> str:
+    """What is said of files that hold no episode, in ``compare``'s words."""
+    return f"these files hold no episode: {', '.join(str(path) for _, path in files)}"
+
+
 class Pooled(NamedTuple):
     """Pooled episodes: the methods (the baseline first, then the other baselines, then the learned ones),
     eval's per-scale means of each, and each method's paired comparison with the baseline per scale."""
@@ -101,7 +106,11 @@ class Pooled(NamedTuple):
 
 
 def pool(files: list[tuple[str, Path]], baseline: str) -> Pooled:
+    """The episodes of ``files`` pooled (``pooled_rows``); files of no episode (a header alone) are a ValueError, as
+    ``compare`` refuses them: a table of headers alone looks like a table of nothing to compare."""
     episodes = pooled_rows(files)
+    if not episodes:
+        raise ValueError(no_episode(files))
     known = [baseline, *BASELINES, *LEARNED_METHODS]
     methods = sorted(dict.fromkeys(r["method"] for r in episodes), key=lambda m: known.index(m) if m in known else len(known))
     summary = summarize(episodes, [], methods, meta={}, baseline="")
@@ -163,6 +172,8 @@ def main(argv: list[str] | None = None) -> int:
             lines += rows(json.loads(p.read_text()))
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             parser.error(f"{p}: not a summary.json eval wrote ({type(exc).__name__}: {exc})")
+    if not lines:  # summaries of no episode ({"methods": {}}): not a table of headers alone and exit 0
+        parser.error(no_episode(files))
     print(HEADER)
     print("| --- " * 9 + "|")
     for line in lines:

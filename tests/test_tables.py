@@ -182,3 +182,24 @@ def test_a_summary_json_that_does_not_read_is_one_line_naming_it_not_a_traceback
     with pytest.raises(SystemExit):
         tables.main([str(cut)])
     assert f"{cut}: not a summary.json eval wrote (AttributeError" in capsys.readouterr().err
+
+
+def test_files_of_no_episode_are_one_line_saying_so_not_a_table_of_headers_alone(tmp_path, capsys):
+    """An episodes.csv of its header alone (an eval stopped before its first episode) printed Table 1's header and
+    exited 0, as did a summary.json of no method: a table of nothing, taken for a run that compared nothing. Now a usage
+    error (exit 2) in compare's words, as a summary.json that does not read is."""
+    empty = write(tmp_path / "empty.csv", [])
+    assert empty.read_text().strip() == ",".join(CSV_FIELDS)
+    none = tmp_path / "summary.json"
+    none.write_text('{"methods": {}}')
+    tables = load_tables()
+    for args in ([str(empty)], ["--table2", str(empty)], [f"easy={empty}", f"medium={empty}"], [str(none)]):
+        with pytest.raises(SystemExit) as ended:
+            tables.main(args)
+        said = capsys.readouterr()
+        assert ended.value.code == 2 and said.out == "", (args, said)
+        assert f"error: these files hold no episode: {args[-1].partition('=')[2] or args[-1]}" in said.err, (args, said.err)
+    # One file of no episode beside one with episodes pools the other's, as compare does.
+    full = write(tmp_path / "full.csv", [episode("greedy-dist", "a", "large", 1.0)])
+    assert tables.main([str(empty), str(full)]) == 0
+    assert "| large | greedy-dist | 1 |" in capsys.readouterr().out
