@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import sys
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -31,6 +32,7 @@ from cso_runtime.comparison import (
     efficiency_by_scene,
     format_interval,
     labelled,
+    mixed_setups_said,
     scene_key,
     whole_rows,
 )
@@ -154,18 +156,21 @@ def main(argv: list[str] | None = None) -> int:
     if args.table2 and len(csvs) != len(files):
         parser.error("--table2 reads episodes.csv files")
     try:  # an episodes.csv cut short: one line naming it (pooled_rows), not a traceback
-        if args.table2:
-            print("\n".join(table2_from_episodes(csvs, args.baseline)))
-            return 0
         if csvs:
-            lines = table_from_episodes(csvs, args.baseline)
-            print(HEADER + f" per scene vs {args.baseline} [95 % CI], won |")
-            print("| --- " * 10 + "|")
-            for line in lines:
-                print(line)
-            return 0
+            lines = table2_from_episodes(csvs, args.baseline) if args.table2 else table_from_episodes(csvs, args.baseline)
     except ValueError as exc:
         parser.error(str(exc))
+    if csvs:
+        # Episodes of one plan under other setups (sensor, simulator, cell size, step limit): warned of as compare
+        # warns of them, the paired cells pairing as compare does (files read whole already, by the table).
+        for said in mixed_setups_said(csvs):
+            print(said, file=sys.stderr)
+        if not args.table2:
+            print(HEADER + f" per scene vs {args.baseline} [95 % CI], won |")
+            print("| --- " * 10 + "|")
+        for line in lines:
+            print(line)
+        return 0
     lines = []
     for _, p in files:  # a summary.json cut short or of another shape: one line naming it, as an episodes.csv's
         try:

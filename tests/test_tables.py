@@ -203,3 +203,32 @@ def test_files_of_no_episode_are_one_line_saying_so_not_a_table_of_headers_alone
     full = write(tmp_path / "full.csv", [episode("greedy-dist", "a", "large", 1.0)])
     assert tables.main([str(empty), str(full)]) == 0
     assert "| large | greedy-dist | 1 |" in capsys.readouterr().out
+
+
+def test_tables_warns_of_plans_run_under_other_setups_as_compare_does(tmp_path, capsys):
+    """Table 1's paired cells pair episodes as ``compare`` does, but a 360-degree LiDAR's eval pooled with a 180-degree
+    one's was tabled without compare's warning; now the same warnings (``comparison.mixed_setups_said``) go to stderr,
+    and a plan of one name at two cell sizes (two traversable areas, never paired) is not warned of."""
+    def run(name: str, method: str, fov: float, cell_m: float = 0.05, area: float = 150.0) -> Path:
+        return write(tmp_path / f"{name}.csv", [
+            {**episode(method, m, "large", 1.0), "sensor_fov_deg": fov, "sim": "2d", "cell_size_m": cell_m, "max_steps": 300, "traversable_area_m2": area}
+            for m in "abc"
+        ])
+
+    base, ring = run("base", "greedy-dist", 180.0), run("ring", "cso", 360.0)
+    tables = load_tables()
+    for extra in ([], ["--table2"]):
+        assert tables.main([*extra, str(base), str(ring)]) == 0
+        said = capsys.readouterr()
+        assert f"warning: the same plans ran with different sensor_fov_deg: 180 ({base}), 360 ({ring}) on 3 plans (a, b, c)" in said.err, said.err
+        assert "cso" in said.out
+    coarse = write(tmp_path / "coarse.csv", [{**r, "traversable_area_m2": 16.0, "cell_size_m": 0.1} for r in map(dict, _rows(base))])
+    assert tables.main([f"easy={base}", f"easy={coarse}"]) == 0
+    assert capsys.readouterr().err == ""
+
+
+def _rows(path: Path) -> list[dict]:
+    import csv
+
+    with path.open(newline="") as fh:
+        return list(csv.DictReader(fh))
