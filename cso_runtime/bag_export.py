@@ -39,7 +39,8 @@ above. The map's ``info.origin`` is ``geometry.rounded_pose``'d, as ``save-map``
 
 Time (``time``): ``sim`` (default) puts every message at the robot's own time (each scan and odometry at its stamp,
 another message at its step's first: 0.25 s a step in the simulator, however fast a lockstep run went; a later
-episode of the same recording, whose steps start again, follows the one before), ``received`` at its reception time
+episode of the same recording, whose steps start again, follows the one before: told by its messages' episode id,
+``StepTimeline``), ``received`` at its reception time
 in the recording. Every header is stamped
 with that same time, so that transforms are found at the time of each scan. The conversions are ``cso_runtime.ros2_cdr``'s, the same as
 the ROS 2 bridge's; the other keys (clock, status, feedback, distance maps) are counted and left out.
@@ -182,9 +183,12 @@ TIME_MODES = ("sim", "received")
 
 class StepTimeline:
     """Bag time of each message from the robot's own clock: the stamps of the scans and odometry, each its own, laid
-    after the first reception time; a step's other messages at the time of its first scan or odometry. Step numbers
-    that go back (by more than the one step a message can lag) start a new episode, which then follows the last time
-    of the one before by one ``step_s``."""
+    after the first reception time; a step's other messages at the time of its first scan or odometry. A new episode
+    (its clock and steps start again) follows the last time of the one before by one ``step_s``. Its start is told by
+    the episode id its scans and odometry carry (``messages.new_episode_id``: an episode of one step is as new as any);
+    a message of the episode just left, late, keeps that episode's times. Messages of no id (0: a recording before the
+    ids, a publisher without them) tell it by their step numbers going back (by more than the one step a message can
+    lag), which misses an episode after one of fewer than three steps."""
 
     def __init__(self, start_ns: int, step_s: float = 0.25) -> None:
         self.start_ns, self.step_s = start_ns, step_s
@@ -193,23 +197,39 @@ class StepTimeline:
         self.last_s = 0.0
         self.max_step = -1
         self.by_step: dict[int, float] = {}
+        self.episode = 0
+        """The current episode's id (0: none known)."""
+        self.previous: tuple[int, float, dict[int, float]] | None = None
+        """The episode left last: its id, offset and times by step, for its late messages."""
 
-    def stamp(self, step: int, stamp_s: float) -> int:
-        """The bag time (ns) of a step whose scan or odometry carries ``stamp_s``."""
+    def stamp(self, step: int, stamp_s: float, episode: int = 0) -> int:
+        """The bag time (ns) of a step of ``episode`` (its id; 0: none) whose scan or odometry carries ``stamp_s``."""
         if self.first_stamp_s is None:
             self.first_stamp_s = stamp_s
-        if step < self.max_step - 1:  # a new episode: its clock and steps start again
+        if episode and self.previous is not None and episode == self.previous[0]:  # late, of the episode left last
+            _, offset_s, by_step = self.previous
+            t = stamp_s - self.first_stamp_s + offset_s
+            by_step.setdefault(step, t)
+            return self.start_ns + ros2_cdr.stamp_ns_from_seconds(t)
+        new = episode != self.episode if episode and self.episode else step < self.max_step - 1
+        if new:  # a new episode: its clock and steps start again
+            self.previous = (self.episode, self.offset_s, self.by_step) if self.episode else None
             self.offset_s = self.last_s + self.step_s - (stamp_s - self.first_stamp_s)
-            self.by_step.clear()
+            self.by_step = {}
             self.max_step = -1
+        if episode:
+            self.episode = episode
         t = stamp_s - self.first_stamp_s + self.offset_s  # its own: a real-time sim's scan fired before its step's odometry
         self.by_step.setdefault(step, t)
         self.max_step = max(self.max_step, step)
         self.last_s = max(self.last_s, t)
         return self.start_ns + ros2_cdr.stamp_ns_from_seconds(t)
 
-    def at(self, step: int) -> int:
-        """The bag time of a message that carries only its step (a map, a goal...): its step's, else the latest."""
+    def at(self, step: int, episode: int = 0) -> int:
+        """The bag time of a message that carries only its step (a map, a goal...) and perhaps its episode id: its
+        step's (in the episode left last, for a late one of it), else the latest."""
+        if episode and self.previous is not None and episode == self.previous[0] and step in self.previous[2]:
+            return self.start_ns + ros2_cdr.stamp_ns_from_seconds(self.previous[2][step])
         return self.start_ns + ros2_cdr.stamp_ns_from_seconds(self.by_step.get(step, self.last_s))
 
 
@@ -304,10 +324,11 @@ class BagConverter:
         self.begin(received_ns)
         assert self.timeline is not None
         if isinstance(msg, ScanMsg):
-            return self.timeline.stamp(msg.step, msg.scan.stamp_s)
+            return self.timeline.stamp(msg.step, msg.scan.stamp_s, msg.episode)
         if isinstance(msg, OdometryMsg):
-            return self.timeline.stamp(msg.step, msg.stamp_s)
-        return self.timeline.at(int(getattr(msg, "step", -1)))
+            return self.timeline.stamp(msg.step, msg.stamp_s, msg.episode)
+        episode = getattr(msg, "episode", 0)
+        return self.timeline.at(int(getattr(msg, "step", -1)), episode if isinstance(episode, int) else 0)
 
     def knows_map_origin(self, episode: int | None = None) -> bool:
         """Whether the map origin of ``episode`` (None: the current one) is known: its status said it, or it has no id

@@ -645,3 +645,29 @@ def test_a_bags_map_origin_is_rounded_as_save_maps_yaml(tmp_path: Path):
     from cso_runtime.geometry import rounded_pose
 
     assert rounded_pose(Pose2D(-0.0, 1e-12, -5.2749999999999995)) == Pose2D(0.0, 0.0, -5.275)
+
+
+def test_an_episode_after_one_of_one_or_two_steps_follows_it_by_its_episode_id(tmp_path: Path):
+    """The timeline told a new episode only by step numbers going back by more than one: an episode after one of one
+    or two steps (steps 0 then 0, or 0, 1 then 0) was laid over it, its scans at the times of the one before. The
+    messages' episode id now tells it; a late message of the episode just left keeps that episode's time."""
+    keys = RobotKeys("r0")
+    runs = [episode(keys, n, T0_NS + i * 10_000_000, 2_000_000, episode_id=100 + i) for i, n in enumerate((1, 2, 1, 3))]
+    write_recording(tmp_path / "run.mcap", "r0", [m for run in runs for m in run])
+    export_bag(tmp_path / "run.mcap", tmp_path / "bag", map_period_s=0)
+    bag = read_bag(tmp_path / "bag")
+    steps = 1 + 2 + 1 + 3
+    for topic in ("/scan", "/odom", "/map", "/cmd_vel"):
+        assert [t for t, _ in bag[topic]] == [T0_NS + k * 250_000_000 for k in range(steps)], topic
+
+    # The timeline alone: a late odometry and map of the episode left keep its times.
+    from cso_runtime.bag_export import StepTimeline
+
+    timeline = StepTimeline(T0_NS)
+    assert [timeline.stamp(k, 0.25 * k, 7) for k in (0, 1)] == [T0_NS, T0_NS + 250_000_000]
+    assert timeline.stamp(0, 0.0, 8) == T0_NS + 500_000_000  # episode 8's first step, one step after 7's last
+    assert timeline.stamp(1, 0.25, 7) == T0_NS + 250_000_000 and timeline.at(1, 7) == T0_NS + 250_000_000  # late, of 7
+    assert timeline.stamp(1, 0.25, 8) == T0_NS + 750_000_000 and timeline.at(1, 8) == T0_NS + 750_000_000
+    # No ids (a recording before them): step numbers going back tell a new episode, as before.
+    legacy_timeline = StepTimeline(T0_NS)
+    assert [legacy_timeline.stamp(k, 0.25 * k) for k in (0, 1, 2, 0)] == [T0_NS + k * 250_000_000 for k in range(4)]
