@@ -259,9 +259,10 @@ def mujoco_config(
     ``configs/robot_sim.yaml``: physics, odometry drift), its rays cast from the sensor's own mount, which the
     mapper and the planner use too (eval, the services and doctor give it the LIMO's 0.103 m unless a config
     sets it): one mount, not two that disagree. With ``robot``, its control period must be a whole number of
-    physics steps. Raises ConfigError naming ``where`` and, for another mount, how the caller's user sets the
-    sensor's (``mount``; None: the caller fixes it, the key can only be left out)."""
-    from robot_sim.config import MujocoSimConfig, lidar_mount_problem, whole_steps  # noqa: PLC0415 - MuJoCo only when asked for
+    physics steps, and walls must stop it at its top speed (``check_walls_hold``). Raises ConfigError naming ``where``
+    and, for another mount, how the caller's user sets the sensor's (``mount``; None: the caller fixes it, the key can
+    only be left out)."""
+    from robot_sim.config import MujocoSimConfig, check_walls_hold, lidar_mount_problem, whole_steps  # noqa: PLC0415 - MuJoCo only when asked for
 
     data = dict(overrides or {})
     given = data.pop("lidar_mount_x_m", None)
@@ -272,6 +273,7 @@ def mujoco_config(
     if robot is not None:
         try:
             whole_steps(robot.control_period_s, config.timestep_s, "robot.control_period_s")
+            check_walls_hold(config, robot)  # not the body through walls too soft for its top speed, or between two physics steps
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
     return config

@@ -15,6 +15,7 @@ from cso_runtime.config import (
     Bound,
     ConfigError,
     ExplorationConfig,
+    RobotConfig,
     SensorConfig,
     check_bounds,
     seconds,
@@ -41,6 +42,48 @@ def whole_steps(duration_s: float, timestep_s: float, what: str) -> int:
     return n
 
 
+def through_wall_problem(sim: MujocoSimConfig, robot: RobotConfig) -> str | None:
+    """Why walls may not stop ``robot`` at its top speed under ``sim`` (``MAX_SINK_OF_SIDE``: it travels too far within
+    the contact's time constant, and so within a physics step), with values that work, or None. Checked where the
+    MuJoCo LIMO's parameters meet the robot's (``simulator.mujoco_config``, ``MujocoSimulator``), before anything starts."""
+    side_m = min(robot.length_m, robot.width_m)
+    most_m = MAX_SINK_OF_SIDE * side_m
+    v = robot.max_linear_mps
+    if sim.contact_time_constant_s * v <= most_m * (1 + _WHOLE_STEPS_REL_TOL):
+        return None
+    side = "robot.width_m" if robot.width_m <= robot.length_m else "robot.length_m"
+    softest_s = most_m / v
+    finer = ""
+    if sim.timestep_s > softest_s / 2 * (1 + _WHOLE_STEPS_REL_TOL):  # the contact must stay two physics steps or more
+        step = _coarsest_whole_timestep(sim, robot, softest_s / 2)
+        whole = "the contact at least two physics steps; whole steps of robot.control_period_s and of odometry_rate_hz's period"
+        finer = f" with timestep_s {step:.6g} s or finer ({whole})" if step else " with a finer timestep_s"
+    return (
+        f"contact_time_constant_s ({sim.contact_time_constant_s:g} s) x robot.max_linear_mps ({v:g} m/s) is "
+        f"{sim.contact_time_constant_s * v:.3g} m, more than half the robot's smaller side ({side} {side_m:g} m: {most_m:.3g} m; "
+        f"timestep_s ({sim.timestep_s:g} s) x it: {sim.timestep_s * v:.3g} m a physics step): at top speed the body sinks into "
+        f"walls that soft and can pass through them. Use robot.max_linear_mps {most_m / sim.contact_time_constant_s:.6g} m/s "
+        f"or less, or contact_time_constant_s {softest_s:.6g} s or less{finer}"
+    )
+
+
+def _coarsest_whole_timestep(sim: MujocoSimConfig, robot: RobotConfig, most_s: float) -> float | None:
+    """The coarsest physics step of at most ``most_s`` that keeps the control period and the odometry period whole
+    steps (``whole_steps``); None where none is at least ``MIN_TIMESTEP_S``."""
+    first = math.ceil(robot.control_period_s / most_s * (1 - _WHOLE_STEPS_REL_TOL))
+    for n in range(max(1, first), int(robot.control_period_s / MIN_TIMESTEP_S) + 1):
+        timestep_s = robot.control_period_s / n
+        if _steps_if_whole(1.0 / (sim.odometry_rate_hz * timestep_s)) is not None:
+            return timestep_s
+    return None
+
+
+def check_walls_hold(sim: MujocoSimConfig, robot: RobotConfig) -> None:
+    """``through_wall_problem`` as a ConfigError."""
+    if (problem := through_wall_problem(sim, robot)) is not None:
+        raise ConfigError(problem)
+
+
 def limo_sensor() -> SensorConfig:
     """The sensor of a ``MujocoSimulator`` given none, ``doctor``'s, ``scenes --mjcf``'s and the fake LIMO's: the default
     LiDAR where the LIMO carries it (0.103 m ahead), by the rule ``eval --sim mujoco`` and a MuJoCo profile follow."""
@@ -63,7 +106,20 @@ MIN_TIMESTEP_S = 1e-5
 in other units, would not finish an episode)."""
 MAX_TIMESTEP_S = 0.05
 """The coarsest physics step taken: in 50 ms the robot at ``robot.max_linear_mps``' largest, 5 m/s, moves 25 cm, through
-a wall between two steps; the control period is the command's step, not this."""
+a wall between two steps, so the step is bounded by the robot's top speed too (``MAX_SINK_OF_SIDE``); the control
+period is the command's step, not this."""
+MAX_SINK_OF_SIDE = 0.5
+"""How far the robot may travel at its top speed within the walls' contact time constant (``contact_time_constant_s`` x
+``robot.max_linear_mps``), as a fraction of its smaller side (``robot.length_m``, ``robot.width_m``): the walls hold
+it (``through_wall_problem``). A contact is soft: a body driven into a wall sinks into it about 0.4 x that distance
+before the wall stops it, and MuJoCo pushes a body that got past a wall's middle out on the far side. How thin the
+wall is barely matters (a wall is one plan cell at the thinnest, 1 cm or less: the body's own size is what holds it
+back). The LIMO (0.322 x 0.22 m) driven at 100 m/s2 and 10 kN into a 1 cm wall sank 0.16 m at 4 m/s with a 0.1 s
+contact and went through at 5 m/s (at 3.3 m/s and more with the 0.05 s physics step that such a contact allows);
+at half its width, 0.11 m (1.1 m/s with 0.1 s, 5 m/s with 0.02 s), it sank at most 5 cm, head-on or at an angle.
+As the contact time constant is at least two physics steps, this bounds the distance travelled in one physics step
+at top speed (``timestep_s`` x ``robot.max_linear_mps``) to a quarter of the smaller side too. The defaults (1 m/s,
+10 ms) travel 1 cm."""
 MAX_TIME_CONSTANT_S = 10.0
 """The slowest servo or contact time constant taken: a servo that takes longer than 10 s to follow a command, or a wall
 as soft, is a value in other units (the defaults are 20 ms and 10 ms)."""
@@ -111,7 +167,8 @@ MUJOCO_SIM_BOUNDS: dict[str, Bound] = {
 """``MujocoSimConfig``'s bounds, each checked by its ``validate`` before anything starts (``config.check_bounds``), as
 ``configs/robot_sim.yaml`` documents them; beside them the time constants are at least two physics steps,
 ``wheel_radius_m`` is below ``body_height_m`` and ``wall_height_m``, ``lidar_height_m`` below ``wall_height_m`` and the
-odometry period whole physics steps. ``lidar_mount_x_m`` must be the sensor's mount, which ``SensorConfig`` bounds."""
+odometry period whole physics steps; with the robot's parameters, walls stop it at top speed (``through_wall_problem``).
+``lidar_mount_x_m`` must be the sensor's mount, which ``SensorConfig`` bounds."""
 
 
 @dataclass

@@ -29,7 +29,7 @@ import numpy as np
 from cso_runtime.config import ConfigError, RobotConfig, SensorConfig
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, relative_pose, returns_as_float32, wrap_angle_rad
 from cso_runtime.scenes import FloorPlan
-from robot_sim.config import MujocoSimConfig, limo_sensor, whole_steps
+from robot_sim.config import MujocoSimConfig, check_walls_hold, limo_sensor, whole_steps
 from robot_sim.limo import ACTUATORS, GROUP_WALLS, JOINTS, LIDAR_SITE, ROBOT_BODY, lateral_feedforward_mps
 from robot_sim.scene import world_mjcf
 
@@ -73,6 +73,7 @@ class MujocoSimulator:
         self.robot.validate()  # its limits become the model's ctrlrange, its size the chassis
         self.config.validate()
         c = self.config
+        check_walls_hold(c, self.robot)  # a body too fast for the walls' contact (or the physics step) passes through them
         if self.sensor.rate_hz * c.timestep_s > 1.0:
             raise ConfigError(
                 f"sensor.rate_hz ({self.sensor.rate_hz:g} Hz) is above the physics rate ({1.0 / c.timestep_s:g} Hz, timestep_s "

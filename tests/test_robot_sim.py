@@ -743,3 +743,54 @@ def test_a_2d_robot_that_starts_against_a_thin_wall_does_not_drive_through_it(re
         sim = KinematicSimulator(dataclasses.replace(plan, start=Pose2D(start_x_m, 2.0, yaw_rad)), SensorConfig(), robot, seed=0)
         sim.step(VelocityCommand(0.1 / control_period_s, 0.0))
         assert (sim.true_pose().x_m, sim.true_pose().y_m) == pytest.approx((start_x_m + moved[0], 2.0 + moved[1]), abs=1e-9)
+
+
+def thin_wall_room(wall_m: float) -> FloorPlan:
+    """A 5 x 3 m room split at x = 2.5 m by a wall one cell (``wall_m``) thick; the LIMO at x = 1 m facing it."""
+    free = np.zeros((int(round(3.0 / wall_m)), int(round(5.0 / wall_m))), dtype=bool)
+    free[1:-1, 1:-1] = True
+    free[:, int(round(2.5 / wall_m))] = False
+    return FloorPlan("thin_wall", free, wall_m, Pose2D(1.0, 1.5, 0.0))
+
+
+def test_settings_whose_walls_cannot_stop_the_robot_at_top_speed_are_refused_with_settings_that_work(monkeypatch) -> None:
+    """At the coarsest settings each bound took (``timestep_s`` 0.05, so ``contact_time_constant_s`` 0.1; ``robot.max_linear_mps``
+    5, 100 m/s2, the strongest servo) the LIMO moved 25 cm a physics step and drove through a 1 or 5 cm wall. Contacts are
+    soft: at 5 m/s the body sinks that far into a 0.1 s contact even at a 5 ms step, and MuJoCo pushes a body past a wall's
+    middle out on the far side. ``contact_time_constant_s`` x ``robot.max_linear_mps`` (which bounds ``timestep_s`` x it:
+    the contact is two steps or more) is now at most half the robot's smaller side, refused before anything starts with a
+    speed and a contact (and step) that work; at each of those, the same drive stops at the wall."""
+    from cso_runtime.simulator import mujoco_config
+    from robot_sim.config import MAX_TIMESTEP_S
+
+    coarse = {"timestep_s": MAX_TIMESTEP_S, "max_linear_accel_mps2": 100.0, "traction_force_n": 10_000.0, "odometry_rate_hz": 20.0,
+              "actuator_time_constant_s": 0.1, "contact_time_constant_s": 0.1}
+    fast = RobotConfig(max_linear_mps=5.0)
+    said = (r"contact_time_constant_s \(0.1 s\) x robot.max_linear_mps \(5 m/s\) is 0.5 m, more than half the robot's smaller side "
+            r"\(robot.width_m 0.22 m: 0.11 m; timestep_s \(0.05 s\) x it: 0.25 m a physics step\).* Use robot.max_linear_mps 1.1 m/s or less, "
+            r"or contact_time_constant_s 0.022 s or less with timestep_s 0.01 s or finer")
+    with pytest.raises(ConfigError, match=said):
+        MujocoSimulator(thin_wall_room(0.05), robot=fast, config=MujocoSimConfig(**coarse))
+    with pytest.raises(ConfigError, match="^services.sim.mujoco: " + said):  # eval's and up's check, before anything starts
+        mujoco_config(coarse, SensorConfig(), where="services.sim.mujoco", robot=fast)
+    with pytest.raises(ConfigError, match=r"0.5 m.* Use robot.max_linear_mps 1.1 m/s or less, or contact_time_constant_s 0.022 s or less$"):
+        mujoco_config({"contact_time_constant_s": 0.1, "traction_force_n": 10_000.0}, SensorConfig(), robot=fast)  # at a 5 ms step too
+
+    def drive(robot: RobotConfig, config: MujocoSimConfig, wall_m: float) -> float:
+        sim = MujocoSimulator(thin_wall_room(wall_m), robot=robot, seed=0, config=config)
+        for _ in range(12):  # 3 s at full speed into the wall
+            sim.step(VelocityCommand(robot.max_linear_mps, 0.0))
+        return sim.true_pose().x_m
+
+    with monkeypatch.context() as unchecked:  # what the check keeps out: through the wall and on across the room
+        unchecked.setattr("robot_sim.sim.check_walls_hold", lambda *_: None)
+        assert drive(fast, MujocoSimConfig(**coarse), 0.05) > 2.6
+        assert drive(fast, MujocoSimConfig(contact_time_constant_s=0.1, traction_force_n=10_000.0, max_linear_accel_mps2=100.0), 0.01) > 2.6
+    stiffer = dataclasses.replace(MujocoSimConfig(**coarse), timestep_s=0.01, contact_time_constant_s=0.022, actuator_time_constant_s=0.022)
+    for wall_m in (0.01, 0.05):  # either way out the error names stops the LIMO at the wall
+        assert drive(RobotConfig(max_linear_mps=1.1), MujocoSimConfig(**coarse), wall_m) < 2.5
+        assert drive(fast, stiffer, wall_m) < 2.5
+    # The defaults, and the coarsest step at the LIMO's own top speed, stay valid.
+    mujoco_config({}, SensorConfig(), robot=RobotConfig())
+    mujoco_config(coarse, SensorConfig(), robot=RobotConfig())
+    mujoco_config({}, SensorConfig(), robot=fast)
