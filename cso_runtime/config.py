@@ -1279,7 +1279,7 @@ def yaml_text(value: Any) -> str:
 def setting_text(value: float) -> str:
     """A number as a message and a ``--set`` write it: ``:g``'s short form (``2``, ``0.3``) where it reads back as
     ``value``, else the shortest text that does (``2.1234567``, ``2.0000001``), so that the ``--set`` a refusal or
-    ``train``'s closing ``eval`` command names (``learned.registry.InputMismatch``, ``learned.ppo.matching_eval_command``)
+    ``train``'s closing ``eval`` command names (``learned.weights.InputMismatch``, ``learned.ppo.matching_eval_command``)
     gives the very value compared, not one that is refused in turn, and two values that differ never read alike."""
     short = f"{value:g}"
     return short if float(short) == value else repr(float(value))

@@ -368,7 +368,12 @@ class Profile:
             except ConfigError as exc:
                 raise ConfigError(f"services.policy.method: {exc}") from None
         if method in LEARNED_METHODS and not own_policy:
-            from cso_runtime.learned.weights import weights_file_problem, weights_file_refusal, weights_path  # noqa: PLC0415
+            from cso_runtime.learned.weights import (  # noqa: PLC0415
+                recorded_input_refusals,
+                weights_file_problem,
+                weights_file_refusal,
+                weights_path,
+            )
 
             if refusal := weights_file_refusal([method]):
                 raise ConfigError(f"method {method}: {refusal}")
@@ -378,6 +383,10 @@ class Profile:
                 raise ConfigError(f"method {method}: no weights at {weights_path(method, sensor)}; {fix}")
             if problem := weights_file_problem(method, sensor):
                 raise ConfigError(f"method {method}: {problem}")
+            # Inputs of another scale than the weights learned on (the entropy window): the policy service refuses them at its
+            # start (weights.input_mismatches, as registry loads them); their record says so without torch, before anything starts.
+            if refused := recorded_input_refusals(method, self.exploration_config().frontier, sensor):
+                raise ConfigError(f"method {method}: {'; '.join(refused)}")
             device = policy.get("device", "cpu")
             if device != "cpu":  # torch only for a GPU policy
                 from cso_runtime.learned.registry import device_problem  # noqa: PLC0415

@@ -18,10 +18,19 @@ from typing import Any
 import numpy as np
 import torch
 
-from cso_runtime.config import FrontierConfig, MaskConfig, SensorConfig, setting_text
+from cso_runtime.config import FrontierConfig, MaskConfig, SensorConfig
 from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph, frontier_count
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
-from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_file_refusal, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
+from cso_runtime.learned.weights import (  # noqa: F401 - WEIGHTS_DIR_ENV, INPUT_CHECKS and InputMismatch re-exported
+    INPUT_CHECKS,
+    TRAINED_FRONTIER_BEFORE_RECORD,
+    WEIGHTS_DIR_ENV,
+    InputMismatch,
+    has_weights,
+    input_mismatches,
+    weights_file_refusal,
+    weights_path,
+)
 from cso_runtime.observation import Observation
 from cso_runtime.outputs import write_whole
 from cso_runtime.policies import VARIANTS, ActionMasker, Goal, goal_of
@@ -97,42 +106,6 @@ def save_checkpoint(
     )
 
 
-TRAINED_FRONTIER_BEFORE_RECORD = FrontierConfig(min_cluster_size_m=0.3, entropy_window_m=2.0)
-"""The frontier settings of a checkpoint written before checkpoints recorded theirs (``frontier``): every shipped
-weights file, and every run of ``train`` until then. ``train`` has built its episodes' observations with
-``FrontierConfig``'s defaults from its first commit until the record came (``ppo.Args.env_config``: ``ExplorationConfig()``;
-no setting of ``Args`` nor of ``configs/train.yaml``, the recipe of BENCHMARKS.md's ``cso-runtime train --config
-configs/train.yaml``, changed them then), and those defaults have been 0.3 m and 2 m since the first commit. Written out rather than read from
-``FrontierConfig()``, so that a later default does not change what old weights are said to have been trained with. The
-entropy window is in every checkpoint's ``graph`` too (``GraphConfig.entropy_window_m``, set by ``train`` to its
-episodes' window, 2 m in each shipped file): ``trained_frontier`` reads it from there."""
-
-
-INPUT_CHECKS: dict[str, bool] = {"entropy_window_m": True, "min_cluster_size_m": False}
-"""The run settings (of ``frontier``) that change what the network is given, compared at every load with those the
-weights were trained with (``trained_frontier``); True: a mismatch is refused (CheckpointError), False: warned.
-
-- ``entropy_window_m`` (gamma of Eq. 4), refused: the frontier service counts I over the run's window and the graph
-  divides it by the trained one (``graph.build_graph``: I x cell size / window, about 1 along a straight frontier at the
-  trained window), so another window scales the entropy input by about run / trained: a network fed inputs of another
-  scale than it learned on, silently. Checked only for the variants that read I (``use_entropy``: not cso-no-info nor
-  gnn-baseline, whose graphs hold 0 there). Weights for another window are trained with it (``train --set
-  entropy_window_m=...``, ``ppo.Args.entropy_window_m``).
-- ``min_cluster_size_m``, warned: it decides which frontier clusters become candidate goals, the network's actions (and
-  the smallest ``size`` input a node may have), not what a node's inputs mean; every input keeps its scale, and a
-  robot whose sensor leaves more or fewer short frontier fragments may need another value on purpose.
-
-Not compared, each for its reason: the graph's own settings (``GraphConfig``: node limits, past-position nodes, knn,
-distance scale, which features) come from the checkpoint itself, never from the run, so they cannot differ; the
-sensor's field of view picks its own file (``weights.weights_path``: ``<method>@fov<deg>.pt``) and is warned of from
-the record beside the weights (``weights.sensor_mismatches``), as the masks' stuck settings are
-(``weights.mask_mismatches``): masks act on the network's output (the logits), not on its inputs, and the valid distance
-mask's far bound is run other than trained on purpose; the map's cell size is each map's own, not a setting, and every
-input is made free of it (lengths in metres over ``distance_scale_m``, I times the cell size), the recipe training at
-0.05 and 0.1 m a cell; the robot's radius (which cells are traversable) and the replanning period (how far apart the
-past-position nodes lie) are the robot's and the run's, and change what the inputs measure, never their scale."""
-
-
 def trained_frontier(ckpt: dict[str, Any], graph: GraphConfig) -> FrontierConfig:
     """The frontier settings the weights of ``ckpt`` (with its ``graph``) were trained with: its ``frontier`` record,
     or, in a checkpoint written before the record, ``TRAINED_FRONTIER_BEFORE_RECORD`` with the entropy window of its
@@ -143,43 +116,6 @@ def trained_frontier(ckpt: dict[str, Any], graph: GraphConfig) -> FrontierConfig
         return before
     known = {f.name for f in dataclasses.fields(FrontierConfig)}
     return dataclasses.replace(before, **{k: float(v) for k, v in record.items() if k in known and isinstance(v, (int, float))})
-
-
-@dataclasses.dataclass(frozen=True)
-class InputMismatch:
-    """One run setting of ``INPUT_CHECKS`` that differs from the weights' training."""
-
-    key: str
-    """The ``FrontierConfig`` field (``frontier.<key>`` in eval's ``--set``)."""
-    trained: float
-    run: float
-    refused: bool
-
-    def said(self, name: str, path: Path) -> str:
-        """One line naming the parameter, both values and how to proceed."""
-        trained, run = setting_text(self.trained), setting_text(self.run)
-        matching = f"--set frontier.{self.key}={trained} (up: --set exploration.frontier.{self.key}={trained})"
-        head = f"the weights of {name} ({path}) were trained with frontier.{self.key} {trained} m, this run's is {run} m"
-        if self.key == "entropy_window_m":
-            return (
-                f"{head}: the network's entropy input would be about {self.run / self.trained:g} times what it learned on;"
-                f" run with {matching}, or with weights trained with a {run} m window"
-                f" (cso-runtime train --config configs/train.yaml --set entropy_window_m={run})"
-            )
-        return f"{head}: its candidate goals would be other frontier clusters than it learned to choose among; {matching} runs them as trained"
-
-
-def input_mismatches(trained: FrontierConfig, run: FrontierConfig, use_entropy: bool = True) -> list[InputMismatch]:
-    """The settings of ``INPUT_CHECKS`` in which ``run`` differs from ``trained`` (``trained_frontier``), in that order;
-    the entropy window only where the variant reads I (``use_entropy``)."""
-    found = []
-    for key, refused in INPUT_CHECKS.items():
-        if key == "entropy_window_m" and not use_entropy:
-            continue
-        was, now = float(getattr(trained, key)), float(getattr(run, key))
-        if was != now:
-            found.append(InputMismatch(key, was, now, refused))
-    return found
 
 
 class CheckpointError(ValueError):

@@ -14,13 +14,14 @@ exactly that file, whatever the sensor; nothing beside it takes its place.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from cso_runtime.config import LIDAR_FOVS_DEG, ConfigError, MaskConfig, SensorConfig
+from cso_runtime.config import LIDAR_FOVS_DEG, ConfigError, FrontierConfig, MaskConfig, SensorConfig, setting_text
 from cso_runtime.outputs import file_sha256
 
 WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
@@ -302,3 +303,105 @@ def sensor_mismatches(names: list[str], sensor: SensorConfig, eval_hint: bool = 
             f" this run's sees {sensor.fov_deg:g} degrees{hint}"
         )
     return lines
+
+
+TRAINED_FRONTIER_BEFORE_RECORD = FrontierConfig(min_cluster_size_m=0.3, entropy_window_m=2.0)
+"""The frontier settings of a checkpoint written before checkpoints recorded theirs (``frontier``): every shipped
+weights file, and every run of ``train`` until then. ``train`` has built its episodes' observations with
+``FrontierConfig``'s defaults from its first commit until the record came (``ppo.Args.env_config``: ``ExplorationConfig()``;
+no setting of ``Args`` nor of ``configs/train.yaml``, the recipe of BENCHMARKS.md's ``cso-runtime train --config
+configs/train.yaml``, changed them then), and those defaults have been 0.3 m and 2 m since the first commit. Written out rather than read from
+``FrontierConfig()``, so that a later default does not change what old weights are said to have been trained with. The
+entropy window is in every checkpoint's ``graph`` too (``GraphConfig.entropy_window_m``, set by ``train`` to its
+episodes' window, 2 m in each shipped file): ``trained_frontier`` reads it from there."""
+
+
+INPUT_CHECKS: dict[str, bool] = {"entropy_window_m": True, "min_cluster_size_m": False}
+"""The run settings (of ``frontier``) that change what the network is given, compared at every load with those the
+weights were trained with (``registry.trained_frontier``; before anything starts, ``recorded_frontier``); True: a mismatch
+is refused (``registry.CheckpointError``; ``up``: a ConfigError), False: warned.
+
+- ``entropy_window_m`` (gamma of Eq. 4), refused: the frontier service counts I over the run's window and the graph
+  divides it by the trained one (``graph.build_graph``: I x cell size / window, about 1 along a straight frontier at the
+  trained window), so another window scales the entropy input by about run / trained: a network fed inputs of another
+  scale than it learned on, silently. Checked only for the variants that read I (``use_entropy``: not cso-no-info nor
+  gnn-baseline, whose graphs hold 0 there). Weights for another window are trained with it (``train --set
+  entropy_window_m=...``, ``ppo.Args.entropy_window_m``).
+- ``min_cluster_size_m``, warned: it decides which frontier clusters become candidate goals, the network's actions (and
+  the smallest ``size`` input a node may have), not what a node's inputs mean; every input keeps its scale, and a
+  robot whose sensor leaves more or fewer short frontier fragments may need another value on purpose.
+
+Not compared, each for its reason: the graph's own settings (``GraphConfig``: node limits, past-position nodes, knn,
+distance scale, which features) come from the checkpoint itself, never from the run, so they cannot differ; the
+sensor's field of view picks its own file (``weights.weights_path``: ``<method>@fov<deg>.pt``) and is warned of from
+the record beside the weights (``weights.sensor_mismatches``), as the masks' stuck settings are
+(``weights.mask_mismatches``): masks act on the network's output (the logits), not on its inputs, and the valid distance
+mask's far bound is run other than trained on purpose; the map's cell size is each map's own, not a setting, and every
+input is made free of it (lengths in metres over ``distance_scale_m``, I times the cell size), the recipe training at
+0.05 and 0.1 m a cell; the robot's radius (which cells are traversable) and the replanning period (how far apart the
+past-position nodes lie) are the robot's and the run's, and change what the inputs measure, never their scale."""
+
+
+@dataclasses.dataclass(frozen=True)
+class InputMismatch:
+    """One run setting of ``INPUT_CHECKS`` that differs from the weights' training."""
+
+    key: str
+    """The ``FrontierConfig`` field (``frontier.<key>`` in eval's ``--set``)."""
+    trained: float
+    run: float
+    refused: bool
+
+    def said(self, name: str, path: Path) -> str:
+        """One line naming the parameter, both values and how to proceed."""
+        trained, run = setting_text(self.trained), setting_text(self.run)
+        matching = f"--set frontier.{self.key}={trained} (up: --set exploration.frontier.{self.key}={trained})"
+        head = f"the weights of {name} ({path}) were trained with frontier.{self.key} {trained} m, this run's is {run} m"
+        if self.key == "entropy_window_m":
+            return (
+                f"{head}: the network's entropy input would be about {self.run / self.trained:g} times what it learned on;"
+                f" run with {matching}, or with weights trained with a {run} m window"
+                f" (cso-runtime train --config configs/train.yaml --set entropy_window_m={run})"
+            )
+        return f"{head}: its candidate goals would be other frontier clusters than it learned to choose among; {matching} runs them as trained"
+
+
+def input_mismatches(trained: FrontierConfig, run: FrontierConfig, use_entropy: bool = True) -> list[InputMismatch]:
+    """The settings of ``INPUT_CHECKS`` in which ``run`` differs from ``trained`` (``registry.trained_frontier``), in that order;
+    the entropy window only where the variant reads I (``use_entropy``)."""
+    found = []
+    for key, refused in INPUT_CHECKS.items():
+        if key == "entropy_window_m" and not use_entropy:
+            continue
+        was, now = float(getattr(trained, key)), float(getattr(run, key))
+        if was != now:
+            found.append(InputMismatch(key, was, now, refused))
+    return found
+
+
+def recorded_frontier(path: Path) -> FrontierConfig | None:
+    """The frontier settings the weights at ``path`` were trained with, as the record ``train`` writes beside them says
+    (``<stem>.json``'s ``args.entropy_window_m``; a record from before that field: ``TRAINED_FRONTIER_BEFORE_RECORD``,
+    as ``train`` ran then), without torch; None where no readable record says. The load reads the checkpoint's own
+    (``registry.trained_frontier``), which this stands for before anything starts (``recorded_input_refusals``)."""
+    args = training_args(path)
+    if args is None:
+        return None
+    window = args.get("entropy_window_m", TRAINED_FRONTIER_BEFORE_RECORD.entropy_window_m)
+    if isinstance(window, bool) or not isinstance(window, (int, float)) or not 0 < window < float("inf"):
+        return None  # not a window train wrote: the load reads the checkpoint's
+    return dataclasses.replace(TRAINED_FRONTIER_BEFORE_RECORD, entropy_window_m=float(window))
+
+
+def recorded_input_refusals(name: str, frontier: FrontierConfig, sensor: SensorConfig | None = None) -> list[str]:
+    """The ``input_mismatches`` that loading ``name``'s weights (for ``sensor``) with the run's ``frontier`` settings
+    would refuse, one line each, as the weights' record says (``recorded_frontier``): what ``up`` refuses before it starts
+    anything, where the policy service would refuse them at its start. [] where they match or no record says."""
+    from cso_runtime.policies import VARIANTS  # noqa: PLC0415 - no torch; policies imports this module
+
+    path = weights_path(name, sensor)
+    trained = recorded_frontier(path)
+    if trained is None or name not in VARIANTS:
+        return []
+    record = path.with_suffix(".json")
+    return [f"{m.said(name, path)} (as its record {record} says)" for m in input_mismatches(trained, frontier, VARIANTS[name].use_entropy) if m.refused]
