@@ -1538,7 +1538,7 @@ def _mujoco_bounds() -> list[tuple[str, object]]:
 MUJOCO_AT_MOST_BESIDE = {
     "timestep_s": {"odometry_rate_hz": 20.0, "actuator_time_constant_s": 0.1, "contact_time_constant_s": 0.1},
     "odometry_rate_hz": {"timestep_s": 0.001},
-    "wheel_radius_m": {"body_height_m": 4.0},  # below body_height_m
+    "wheel_radius_m": {"body_height_m": 4.0, "wall_height_m": 5.0},  # below body_height_m and wall_height_m
     "lidar_height_m": {"wall_height_m": 5.0},  # below wall_height_m
 }
 """The keys a MuJoCo parameter's largest value needs beside it (``MujocoSimConfig.validate``'s checks between keys)."""
