@@ -305,7 +305,12 @@ refused (``_str``), so a sender clips its own (``clipped``)."""
 
 
 def clipped(text: str, max_chars: int = MAX_TEXT_CHARS) -> str:
-    """``text`` as it is when it fits ``max_chars``, else its start and an ellipsis in ``max_chars`` characters."""
+    """``text`` as it is when it fits ``max_chars``, else its start and an ellipsis in ``max_chars`` characters (the
+    decoder counts characters too, ``_str``, so a multi-byte character is never cut). A character UTF-8 cannot carry (a
+    lone surrogate: a file name of undecodable bytes, ``os.fsdecode``'s) is escaped first (``\\udcff``): the message
+    would not encode at all, and a status that raised went unanswered."""
+    if not text.isascii():
+        text = text.encode("utf-8", "backslashreplace").decode("utf-8")
     return text if len(text) <= max_chars else text[: max_chars - 1] + "…"
 
 

@@ -403,16 +403,17 @@ class Service:
             log.info("%s: %s%s", self.name, state, f" ({reason})" if reason else "")
         self._state_and_reason = (state, reason)
 
-    def guarded(self, callback: Callable[[Any], None]) -> Callable[[Any], None]:
-        """``callback`` for Zenoh, beside the inputs' (a queryable, a liveliness subscriber): an exception in it reached
-        only Zenoh's own log line, in no count, and a status queryable that raised left the service unanswering, killed
-        and restarted by its launcher as hung. Here it is logged with its traceback (the first few) and counted
-        (``callback_errors``, in the status's counters); the service goes on."""
+    def guarded(self, callback: Callable[..., None]) -> Callable[..., None]:
+        """``callback`` for Zenoh, beside the inputs' (a queryable, a subscriber of one's own, a liveliness subscriber),
+        or for another library's thread (the Foxglove server's listener): an exception in it reached only that library's
+        own log line, in no count, and a status queryable that raised left the service unanswering, killed and restarted
+        by its launcher as hung. Here it is logged with its traceback (the first few) and counted (``callback_errors``,
+        in the status's counters); the service goes on."""
         name = str(getattr(callback, "__name__", None) or getattr(getattr(callback, "func", None), "__name__", "a callback"))
 
-        def call(arg: Any) -> None:
+        def call(*args: Any) -> None:
             try:
-                callback(arg)
+                callback(*args)
             except Exception:  # noqa: BLE001 - logged with its traceback and counted
                 self.callback_failed(name)
 
@@ -611,12 +612,19 @@ class ServiceInputs:
             key = self.queue.get_nowait()[0]
         except queue.Empty:
             return False
+        robot: str | None
         try:
             robot, topic = robot_of(key), topic_of(key)
         except ValueError:
             robot, topic = None, key_topic(key)
+        service = self.service
+        if robot is not None and robot != service.ctx.robot and robot not in service.heard_from_s:
+            # A robot the service has never heard from (a service serving every robot, flooded with keys of robots made
+            # up): counted under the topic alone. Its own count would never be forgotten, since it was never heard from
+            # (``forget_robot``), and the service grew by one entry per robot a sender made up.
+            robot = None
         why = f"dropped unhandled: the inbox was full ({INBOX_LIMIT} inputs, {INBOX_MAX_BYTES >> 20} MiB): its handlers are slower than its inputs come"
-        self.service.reject(topic, why, robot)
+        service.reject(topic, why, robot)
         return True
 
     def go_direct(self) -> None:

@@ -44,6 +44,7 @@ import os
 import socket
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -159,20 +160,31 @@ def websocket_handshake(host: str, port: int, timeout_s: float = 5.0) -> bytes:
 class _Subscriptions:
     """The server's listener (on the server's thread): the topics viewers have newly subscribed to, whose latest
     message the bridge's own thread then converts and sends. The server calls ``on_unsubscribe`` too (a panel
-    closed, a viewer gone): a listener without it has each call logged as an error."""
+    closed, a viewer gone): a listener without it has each call logged as an error. Each call runs through ``guarded``
+    (the service's ``Service.guarded``): an exception in it is logged and counted in the service's status, where the
+    server only logged it."""
 
-    def __init__(self) -> None:
+    def __init__(self, guarded: Callable[[Callable[..., None]], Callable[..., None]] = lambda callback: callback) -> None:
         self.new = threading.Event()
         """Set by a subscription, until the bridge takes the topics."""
         self._lock = threading.Lock()
         self._topics: set[str] = set()
+        self._on_subscribe = guarded(self.subscribed)
+        self._on_unsubscribe = guarded(self.unsubscribed)
 
     def on_subscribe(self, client: Any, channel: Any) -> None:
+        self._on_subscribe(client, channel)
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        self._on_unsubscribe(client, channel)
+
+    def subscribed(self, client: Any, channel: Any) -> None:
+        """A viewer subscribed to ``channel``: its topic is taken on the bridge's thread (``take``)."""
         with self._lock:
             self._topics.add(channel.topic)
         self.new.set()
 
-    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+    def unsubscribed(self, client: Any, channel: Any) -> None:
         """Nothing to do: the server stops sending that channel to that viewer, and the channel then has no sink."""
 
     def take(self) -> set[str]:
@@ -216,7 +228,7 @@ class FoxgloveBridgeService(Service):
         ``Service.latest``, the messages a service serves on its cache keys: this bridge serves none)."""
         self.served: dict[str, int] = {}
         """ROS topic -> messages served (converted for a viewer or the MCAP file as they came)."""
-        self.subscriptions = _Subscriptions()
+        self.subscriptions = _Subscriptions(self.guarded)
         self.server: Any = None
         self.mcap: Any = None
         if (problem := mcap_path_problem(self.params)) is not None:  # a configuration error: not restarted to fail again

@@ -47,6 +47,16 @@ from services.frontier_layer import FrontierLayerWorker
 log = logging.getLogger("cso.frontier")
 
 
+DEFER_MAX_INPUTS = 100
+"""Real time: the most inputs in a row that may each find a map and odometry of one step to decide on and leave them
+to a newer one (``backlog() > 0``) before the service decides anyway, on the newest pair it holds; and
+``DEFER_MAX_S`` the most seconds. Without a bound a sustained flood above the service's handling rate (maps of a large
+grid, each slower to decode than the next comes) kept the inbox from ever emptying, and no decision was ever made."""
+
+DEFER_MAX_S = 1.0
+"""The most seconds real time leaves a ready step undecided for newer inputs (``DEFER_MAX_INPUTS``)."""
+
+
 FRONTIER_PARAMS_BOUNDS = {
     **seconds("goal_wait_s", "helper_reply_s", "helper_start_limit_s", positive=True),
     **seconds("helper_start_s"),
@@ -275,6 +285,10 @@ class FrontierService(Service):
         self.maps: dict[int, MapMsg] = {}
         self.odoms: dict[int, OdometryMsg] = {}
         self.feedback: dict[int, PlannerFeedbackMsg] = {}
+        self.deferred_since_s: float | None = None
+        """Real time: when a ready step was first left to newer inputs since the last step decided on (None: none)."""
+        self.deferred_inputs = 0
+        """Real time: how many inputs in a row have left a ready step to newer ones (``DEFER_MAX_INPUTS``)."""
         self.goal: Goal | None = None
         self.awaiting_goal_step: int | None = None
         """The step of a decision whose goal has not arrived yet (lockstep: the next step waits for it)."""
@@ -429,6 +443,15 @@ class FrontierService(Service):
         after = spans.pop()[0] if spans and spans[-1][1] == self.done_step else self.done_step
         self.paused_spans = [*spans, (after, k)]
 
+    def deferred_too_long(self) -> bool:
+        """Real time, newer inputs waiting: count one more input that leaves a ready step to them, and whether it has
+        been done for ``DEFER_MAX_INPUTS`` inputs or ``DEFER_MAX_S`` seconds, so that the service decides anyway."""
+        now_s = time.monotonic()
+        if self.deferred_since_s is None:
+            self.deferred_since_s = now_s
+        self.deferred_inputs += 1
+        return self.deferred_inputs > DEFER_MAX_INPUTS or now_s - self.deferred_since_s >= DEFER_MAX_S
+
     def try_decide(self) -> None:
         ready = sorted(set(self.maps) & set(self.odoms))
         if not ready:
@@ -437,8 +460,9 @@ class FrontierService(Service):
         fb = self.planner_state(k)
         if self.ctx.lockstep and (self.awaiting_goal_step is not None or (k > 0 and fb is None)):
             return  # the last decision's goal, or the planner's report on step k - 1, is on its way
-        if not self.ctx.lockstep and self.backlog() > 0:
+        if not self.ctx.lockstep and self.backlog() > 0 and not self.deferred_too_long():
             return  # real time: newer inputs are waiting; decide on the newest
+        self.deferred_since_s, self.deferred_inputs = None, 0
         waiting = self.awaiting_goal_step is not None and time.monotonic() - self.awaiting_since_s < self.params.goal_wait_s
         m, odom = self.maps.pop(k), self.odoms.pop(k)
         for d in (self.maps, self.odoms):

@@ -28,6 +28,7 @@ The time matching (``OdometryBuffer``) is pure and unit-tested; the service is t
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import math
 import os
@@ -468,17 +469,16 @@ class Ros2BridgeService(Service):
         map_key = p.ros_key(p.map_topic)
         self._latched = {p.map_topic: self.declare_latched(map_key)}
         map_cache_key = f"{LEGACY_PUB_CACHE_PREFIX}/{self.session.zid()}/{map_key}"
+        # Each callback guarded (``Service.guarded``): an exception in one is logged and counted, the service goes on.
         self._ros_subs = [
-            self.session.declare_subscriber(p.ros_key(p.scan_topic), self._on_ros_scan),
-            self.session.declare_subscriber(p.ros_key(p.odom_topic), self._on_ros_odom),
-            self.session.declare_subscriber(p.ros_key(p.resume_topic), self._on_ros_resume),
+            self.session.declare_subscriber(p.ros_key(p.scan_topic), self.guarded(self._on_ros_scan)),
+            self.session.declare_subscriber(p.ros_key(p.odom_topic), self.guarded(self._on_ros_odom)),
+            self.session.declare_subscriber(p.ros_key(p.resume_topic), self.guarded(self._on_ros_resume)),
         ]
         self._queryables = [
-            self.session.declare_queryable(
-                keys.episode_status, lambda q: q.reply(keys.episode_status, encode(self.episode_status()))
-            ),
-            self.session.declare_queryable(keys.episode_result, self._on_result_query),
-            self.session.declare_queryable(map_cache_key, lambda q: self.answer_legacy_cache_query(q, p.map_topic, map_cache_key)),
+            self.session.declare_queryable(keys.episode_status, self.guarded(self._on_status_query)),
+            self.session.declare_queryable(keys.episode_result, self.guarded(self._on_result_query)),
+            self.session.declare_queryable(map_cache_key, self.guarded(functools.partial(self.answer_legacy_cache_query, topic=p.map_topic, cache_key=map_cache_key))),
         ]
         log.info(
             "bridging ROS keys %s, %s -> %s; %s -> %s",
@@ -512,6 +512,9 @@ class Ros2BridgeService(Service):
             f"the robot behind {cmd_key} is claimed by another run or bridge on this network ({other}): this bridge would send it "
             f"commands too; stop that one first, or give another --namespace"
         )
+
+    def _on_status_query(self, query: zenoh.Query) -> None:
+        query.reply(self.ctx.keys.episode_status, encode(self.episode_status()))
 
     def _on_result_query(self, query: zenoh.Query) -> None:
         result = self.final_result
@@ -1011,7 +1014,7 @@ class Ros2BridgeService(Service):
         a robot bridge in another namespace (``-n /limo1`` against ``--namespace limo2``, or none) is then named."""
         if self.session is None or self._scan_probe is not None:
             return
-        self._scan_probe = self.session.declare_subscriber(f"**/{self.params.scan_topic}", self._on_probe_scan)
+        self._scan_probe = self.session.declare_subscriber(f"**/{self.params.scan_topic}", self.guarded(self._on_probe_scan))
 
     def end_scan_probe(self) -> None:
         """Scans come on our key: the probe and what it heard go (a callback in flight may be waiting for the lock)."""

@@ -254,10 +254,10 @@ class SimService(Service):
     def start(self) -> None:
         assert self.session is not None
         keys = self.ctx.keys
-        self._declarations.append(self.session.declare_queryable(keys.episode_status, self._on_status_query))
-        self._declarations.append(self.session.declare_queryable(keys.episode_result, self._on_result_query))
+        self._declarations.append(self.session.declare_queryable(keys.episode_status, self.guarded(self._on_status_query)))
+        self._declarations.append(self.session.declare_queryable(keys.episode_result, self.guarded(self._on_result_query)))
         if self.expected_services:  # every robot's: one policy server may serve several robots under its own id
-            self._declarations.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("*"), self.on_alive, history=True))
+            self._declarations.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("*"), self.guarded(self.on_alive), history=True))
 
     def on_alive(self, sample: Any) -> None:
         track_robots_liveliness(self.alive_services, sample)

@@ -24,7 +24,7 @@ from cso_runtime.config import ConfigError, ExplorationConfig
 from cso_runtime.geometry import Pose2D, compose_pose
 from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import GoalMsg, Message, MessageError, decode, deferred, encode
-from cso_runtime.transport import TransportConfig
+from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 from services.common import ServiceContext, _dispatch
 from services.foxglove_bridge import FoxgloveBridgeService, websocket_handshake
 from tests.conftest import HANG_DEADLINE_S, wait_for
@@ -769,3 +769,42 @@ def test_service_foxglove_bridge_takes_export_bags_frame_flags_with_export_bags_
     argv = ["--config", str(profile), "--connect", "tcp/127.0.0.1:1", "--laser-frame", "/laser"]
     assert service_main(FoxgloveBridgeService, argv, exit_process=False) == 2  # refused before any session opens
     assert "the laser frame '/laser' is no tf2 frame id" in caplog.text
+
+
+def test_an_exception_in_the_bridges_server_listener_is_counted_in_its_status_and_its_status_still_answers(monkeypatch):
+    """The Foxglove server calls the bridge's listener on its own thread: an exception there (a bug in it) reached the
+    server's log line alone, in no count. The listener goes through ``Service.guarded``, as every service's callbacks:
+    logged, counted as ``callback_errors`` in the bridge's status, which still answers."""
+    from services import foxglove_bridge
+    from services.common import run_service
+    from services.foxglove_bridge import FoxgloveBridgeService
+    from tests.test_service_bounds import _status_of
+
+    def subscribed_with_a_bug(self, client, channel) -> None:
+        raise RuntimeError("a bug in the listener")
+
+    monkeypatch.setattr(foxglove_bridge._Subscriptions, "subscribed", subscribed_with_a_bug)
+    port = free_tcp_port()
+    keys = RobotKeys("r0")
+    params = {"port": 0, "map_period_s": 0.0}
+    profile = {"lockstep": False, "services": {"foxglove_bridge": params}}
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        bridge = FoxgloveBridgeService(ServiceContext("foxglove_bridge", "r0", profile, ExplorationConfig(), client, params))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(bridge, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: _status_of(session, keys, "foxglove_bridge") is not None, HANG_DEADLINE_S, "the bridge's status")
+            viewer = _Viewer(bridge.server.port)
+            channels = {c["topic"]: c["id"] for c in viewer.json_op("advertise")["channels"]}
+            viewer.send({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channels["/map"]}]})
+            wait_for(lambda: bridge.callback_errors == 1, HANG_DEADLINE_S, "the listener's error counted")
+            viewer.close()
+            status = _status_of(session, keys, "foxglove_bridge")
+            assert status is not None, "the bridge's status went unanswered"
+            assert status.counters.get("callback_errors") == 1, status.counters
+        finally:
+            stop.set()
+            thread.join(10)
+    assert not thread.is_alive()

@@ -3,8 +3,11 @@ and what it has to let go of is counted where ``status`` shows it."""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -280,3 +283,169 @@ def test_a_policy_server_with_many_stale_robots_still_sends_a_status_that_decode
     status = decode(encode(policy.status_msg()), ServiceStatusMsg)
     assert status.state == "stale" and len(status.reason) == MAX_TEXT_CHARS and status.reason.endswith("…")
     assert status.reason.startswith(policy.reason[:100])
+
+
+@contextlib.contextmanager
+def _running(svc: Any) -> Iterator[None]:
+    """``svc`` run by ``run_service`` on a thread of its own; stopped and joined on the way out."""
+    from services.common import run_service
+
+    stop = threading.Event()
+    thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(10)
+    assert not thread.is_alive()
+
+
+def _status_of(session: Any, keys: RobotKeys, name: str) -> ServiceStatusMsg | None:
+    replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(keys.service_status(name), timeout=2.0) if r.ok]
+    return replies[0] if replies else None
+
+
+def _alive(session: Any, keys: RobotKeys, name: str) -> bool:
+    return any(True for r in session.liveliness().get(keys.alive(name), timeout=0.5) if r.ok)
+
+
+def _raise(*_args: Any) -> None:
+    raise RuntimeError("a bug in a callback")
+
+
+def test_an_exception_in_the_sims_queryables_is_counted_in_its_status_and_its_status_still_answers(monkeypatch):
+    """The sim declared its episode status and result queryables (and its liveliness subscriber) bare: an exception in
+    one reached Zenoh's own log line alone, in no count. They go through ``Service.guarded`` as every service's."""
+    from services.common import ServiceContext
+    from services.sim import SimService
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    profile = {"lockstep": True, "scene": "generated:small:1:0", "seed": 3, "services": {"sim": {}, "mapper": {}}}
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        svc = SimService(ServiceContext("sim", "t1", profile, ExplorationConfig(), client, {"start_delay_s": 0.0}))
+        svc._on_status_query = _raise  # type: ignore[method-assign]  # as start() declares it
+        with _running(svc):
+            wait_for(lambda: _alive(session, keys, "sim"), HANG_DEADLINE_S, "the sim's token")
+            assert not [r for r in session.get(keys.episode_status, timeout=1.0) if r.ok]
+            status = _status_of(session, keys, "sim")
+            assert status is not None, "the sim's status went unanswered"
+            assert status.counters.get("callback_errors") == 1, status.counters
+
+
+def test_an_exception_in_the_ros2_bridges_callbacks_is_counted_in_its_status_and_its_status_still_answers(monkeypatch):
+    """The ROS 2 bridge declared its ROS subscribers (scan, odometry, resume) and its queryables bare: a scan whose
+    handling raised (a bug in its conversion) was in Zenoh's log alone, counted nowhere. They go through
+    ``Service.guarded``."""
+    from services.common import ServiceContext
+    from services.ros2_bridge import Ros2BridgeService
+
+    monkeypatch.setenv("CSO_PARENT_PID", str(os.getppid()))  # as up starts it: no claim to settle first
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        svc = Ros2BridgeService(ServiceContext("ros2_bridge", "t1", {"method": "greedy-dist"}, ExplorationConfig(), client, {"namespace": "limo1"}))
+        svc._on_ros_scan = _raise  # type: ignore[method-assign]  # as start() declares it
+        svc._on_status_query = _raise  # type: ignore[method-assign]
+        with _running(svc):
+            wait_for(lambda: svc._ros_subs, HANG_DEADLINE_S, "the bridge's ROS subscriptions")
+            with session.declare_publisher("limo1/scan") as publisher:
+                wait_for(lambda: publisher.matching_status.matching, HANG_DEADLINE_S, "the bridge's scan subscription at the router")
+                publisher.put(b"a LaserScan")
+            wait_for(lambda: (s := _status_of(session, keys, "ros2_bridge")) is not None and s.counters.get("callback_errors") == 1,
+                     HANG_DEADLINE_S, "the scan's error counted")  # fmt: skip
+            assert not [r for r in session.get(keys.episode_status, timeout=1.0) if r.ok]
+            status = _status_of(session, keys, "ros2_bridge")
+            assert status is not None and status.counters.get("callback_errors") == 2, status
+
+
+def test_a_real_time_frontier_service_under_a_sustained_flood_still_decides():
+    """Real time, the frontier service leaves a ready map to a newer one while inputs wait (``backlog() > 0``): under a
+    flood above its handling rate the inbox never emptied, and no decision was ever made however long it lasted. It
+    decides anyway after ``DEFER_MAX_INPUTS`` inputs or ``DEFER_MAX_S`` seconds, on the newest pair it holds."""
+    from services.frontier import DEFER_MAX_INPUTS, DEFER_MAX_S
+
+    frontier, out = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0})
+    ex = _explorer_at(0)
+    _, odom0, _ = _inputs(ex, 0)
+    frontier._inbox.put("newer input")  # a backlog that never empties
+    _feed(frontier, odom0)
+    step = 0
+    while not out and step <= DEFER_MAX_INPUTS:  # each map finds its odometry, and newer inputs waiting
+        step += 1
+        _feed(frontier, OdometryMsg(step, odom0.stamp_s + 0.1 * step, odom0.pose))
+        _feed(frontier, MapMsg.of(step, ex.map))
+    frontiers = [(m.step, m.decide) for t, m in out if t == "frontiers"]
+    assert frontiers == [(step, True)], frontiers
+    # Each input that leaves a ready pair counts (the odometry of a step whose map is in counts too).
+    assert step == DEFER_MAX_INPUTS // 2 + 1, step
+    out.clear()
+    _feed(frontier, OdometryMsg(step + 1, odom0.stamp_s, odom0.pose))
+    _feed(frontier, MapMsg.of(step + 1, ex.map))  # deferred again, the count afresh
+    assert out == [] and frontier.deferred_inputs == 1
+    assert frontier.deferred_since_s is not None
+    frontier.deferred_since_s -= DEFER_MAX_S  # a second has gone by with the backlog never empty
+    _feed(frontier, OdometryMsg(step + 2, odom0.stamp_s, odom0.pose))  # the next input: decided, on the newest pair
+    assert [(m.step, m.decide) for t, m in out if t == "frontiers"] == [(step + 1, False)]  # the last goal not in yet
+
+
+def test_a_lockstep_frontier_service_never_decides_before_its_step_whatever_waits():
+    """The bound on deferring is real time's: lockstep decides each step in order as before, backlog or not."""
+    frontier, out = _service(FrontierService, lockstep=True)
+    ex = _explorer_at(0)
+    m0, odom0, _ = _inputs(ex, 0)
+    frontier._inbox.put("newer input")
+    _feed(frontier, odom0)
+    _feed(frontier, m0)
+    assert [(m.step, m.decide) for t, m in out if t == "frontiers"] == [(0, True)]
+    assert frontier.deferred_inputs == 0 and frontier.deferred_since_s is None
+
+
+def test_inputs_dropped_from_a_full_inbox_of_robots_never_heard_from_are_counted_under_their_topic_alone(monkeypatch):
+    """A service serving every robot, its inbox full of keys of robots made up: each dropped input was counted under
+    its robot too, an entry per robot that ``forget_robot`` never forgets (the robot was never heard from, its input
+    dropped before it was handled), so the service grew without bound. Counted under the topic alone; the robots it
+    heard from are still counted as theirs."""
+    from services import common
+    from services.common import ServiceInputs
+    from tests.test_service_logic import _Recorder
+
+    monkeypatch.setattr(common, "INBOX_LIMIT", 2)
+    ctx = common.ServiceContext("recorder", "r0", {}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {})
+    svc = _Recorder(ctx)
+    svc.subscribe_robot = "*"
+    svc.heard_from_s["known"] = 0.0
+    inputs = ServiceInputs(svc, threading.Event())
+    payload = encode(OdometryMsg(1, 0.25, Pose2D(0.0, 0.0, 0.0)))
+
+    class Sample:
+        def __init__(self, robot: str) -> None:
+            self.key_expr, self.payload = f"cso/{robot}/odom", self
+
+        def to_bytes(self) -> bytes:
+            return payload
+
+    for robot in ("known", "r0", *(f"madeup{i}" for i in range(50)), "x", "y"):
+        inputs.on_sample(Sample(robot))
+    assert svc.rejected == {"odom": 52}
+    assert svc.rejected_by_robot == {"known": {"odom": 1}, "r0": {"odom": 1}}
+    assert inputs.queue.qsize() == 2 and inputs.queue.nbytes == 2 * len(payload)
+
+
+def test_a_status_whose_reason_names_an_undecodable_file_name_still_encodes():
+    """A reason may carry a lone surrogate (a file name of bytes that are no UTF-8, as ``os.fsdecode`` gives it): the
+    whole status failed to encode, and its query went unanswered (the launcher restarting the service as hung). It is
+    escaped; multi-byte characters are kept whole, as many as the decoder takes."""
+    from cso_runtime.messages import MAX_TEXT_CHARS
+    from services.policy import PolicyService
+
+    policy, _ = _service(PolicyService, lockstep=False)
+    policy.set_state("stale", "cannot read " + os.fsdecode(b"/runs/\xff.yaml"))
+    status = decode(encode(policy.status_msg()), ServiceStatusMsg)
+    assert status.reason == "cannot read /runs/\\udcff.yaml"
+    policy.set_state("stale", "é" * (MAX_TEXT_CHARS + 10))
+    status = decode(encode(policy.status_msg()), ServiceStatusMsg)
+    assert status.reason == "é" * (MAX_TEXT_CHARS - 1) + "…"
