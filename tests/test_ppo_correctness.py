@@ -1,0 +1,131 @@
+"""PPO's correctness against CleanRL's: log-probs recomputed in the update equal the rollout's, the masked
+categorical's edge cases, and the warm start's critic targets at truncations."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import torch
+
+from cso_runtime.learned.network import CategoricalMasked
+from cso_runtime.learned.ppo import (
+    Args,
+    build_model,
+    collect_teacher,
+    index_obs,
+    make_vector_env,
+    mask_to_torch,
+    obs_to_torch,
+    teacher_returns,
+    train,
+    warm_start,
+)
+from tests.test_learned import rooms_plan
+
+
+def test_the_updates_log_probs_equal_the_rollouts_exactly_whatever_the_minibatch():
+    """The rollout scores a batch of envs' graphs, cut to its largest graph; the update re-scores shuffled minibatches
+    of other sizes, cut to theirs. For the same parameters the log-probs must be the same numbers (ratio exactly 1
+    before the first step), and the entropy finite."""
+    torch.manual_seed(0)
+    args = Args(variant="cso", seed=0, num_envs=3, max_steps=200, distance_prior=4.0, cluster_size_feature=True)
+    envs = make_vector_env(args, [rooms_plan(2), rooms_plan(3)])
+    model = build_model(args, torch.device("cpu"))
+    observations, masks, actions, logprobs = [], [], [], []
+    try:
+        obs, info = envs.reset(seed=0)
+        for _ in range(8):
+            g, m = obs_to_torch(obs, torch.device("cpu")), mask_to_torch(info["action_mask"], "cpu")
+            with torch.no_grad():
+                action, logprob, _, _ = model.get_action_and_value(g, m)
+            observations.append(g), masks.append(m), actions.append(action), logprobs.append(logprob)
+            obs, _, _, _, info = envs.step(action.numpy())
+    finally:
+        envs.close()
+    b_obs = {k: torch.cat([o[k] for o in observations]) for k in observations[0]}
+    b_mask, b_actions, b_logprobs = torch.cat(masks), torch.cat(actions), torch.cat(logprobs)
+    assert len(set(b_obs["node_valid"].sum(1).tolist())) > 2  # graphs of several sizes, padded alike
+    for size in (1, 5, len(b_actions)):
+        perm = torch.randperm(len(b_actions))
+        for start in range(0, len(perm), size):
+            mb = perm[start : start + size]
+            with torch.no_grad():
+                _, newlogprob, entropy, _ = model.get_action_and_value(index_obs(b_obs, mb), b_mask[mb], b_actions[mb])
+            assert torch.equal(newlogprob, b_logprobs[mb])
+            assert torch.isfinite(entropy).all()
+
+
+def test_the_masked_categorical_is_the_categorical_over_the_allowed_actions_with_finite_gradients():
+    """Masked actions have probability 0 and add nothing to the entropy; one allowed action is certain (log-prob 0,
+    entropy 0), all allowed is the plain categorical; no NaN, in the values or their gradients, in any of them."""
+    torch.manual_seed(0)
+    logits = (20 * torch.randn(4, 6)).requires_grad_()
+    mask = torch.tensor([[0, 0, 1, 0, 0, 0], [1] * 6, [1, 0, 1, 0, 1, 0], [0] * 6], dtype=torch.bool)
+    dist = CategoricalMasked(logits, mask)
+    actions = torch.tensor([2, 5, 4, 0])
+    logprob, entropy = dist.log_prob(actions), dist.entropy()
+    (logprob.sum() + entropy.sum()).backward()
+    assert torch.isfinite(logprob).all() and torch.isfinite(entropy).all() and torch.isfinite(logits.grad).all()
+    assert logprob[0].item() == 0.0 and entropy[0].item() == 0.0
+    assert (dist.probs[:3][~mask[:3]] == 0).all()  # the last row allows nothing: defined (uniform), never NaN
+    plain = torch.distributions.Categorical(logits=logits[1].detach())
+    torch.testing.assert_close(entropy[1].detach(), plain.entropy())
+    subset = torch.distributions.Categorical(logits=logits[2, [0, 2, 4]].detach())
+    torch.testing.assert_close(entropy[2].detach(), subset.entropy())
+    torch.testing.assert_close(logprob[2].detach(), subset.log_prob(torch.tensor(2)))
+
+
+def test_a_frozen_network_has_a_ratio_of_exactly_one_in_every_update(tmp_path):
+    """Learning rate 0: the policy that re-scores each minibatch is the one that acted, through episode ends,
+    truncations and autoresets, so the approximate KL and the clipped fraction are exactly 0 in every update."""
+    args = Args(
+        variant="cso",
+        out_dir=str(tmp_path),
+        seed=0,
+        total_decisions=96,
+        num_envs=2,
+        num_steps=16,
+        num_minibatches=4,
+        max_steps=60,
+        learning_rate=0.0,
+        target_kl=0.0,
+        progress=False,
+    )
+    train(args, log=lambda _m: None, plans=[rooms_plan(2), rooms_plan(3)])
+    with (tmp_path / "cso_log.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 3 and sum(int(r["episodes"]) for r in rows) >= 2
+    assert all(float(r["approx_kl"]) == 0.0 and float(r["clipfrac"]) == 0.0 for r in rows), rows
+
+
+def test_teacher_returns_are_known_only_where_the_episode_terminated():
+    """The warm start's critic targets: a Monte-Carlo return is the true one only for an episode that terminated in
+    the collection. The partial sum of an episode cut by the step limit, or still going when the collection stopped,
+    is no return (PPO bootstraps it with V): it was used as if the cut were the end."""
+    rewards = np.array([[1.0, 1.0], [1.0, 1.0], [1.0, 1.0], [1.0, 1.0]])
+    terminated = np.array([[False, False], [True, False], [False, False], [False, False]])
+    truncated = np.array([[False, False], [False, False], [False, True], [False, False]])
+    returns = teacher_returns(rewards, terminated, truncated, 0.5)
+    np.testing.assert_array_equal(returns[:, 0], [1.5, 1.0, np.nan, np.nan])  # ended at 1; 2, 3: still going
+    assert np.isnan(returns[:, 1]).all()  # cut at 2; 3: still going
+
+
+def test_collected_teacher_data_gives_no_return_to_truncated_or_unfinished_episodes_and_the_critic_skips_them():
+    """On two rooms, greedy-dist finishes in 19 decisions; cut at 30 control steps it is truncated at its 16th. Rows of
+    an episode that did not terminate hold NaN; the warm start fits its critic on the others only, and with none
+    it still trains the actor, every weight finite."""
+    for max_steps, finished in ((400, 19), (30, 0)):
+        args = Args(variant="cso", num_envs=1, max_steps=max_steps, num_minibatches=2, warm_start_epochs=2, progress=False)
+        envs = make_vector_env(args, [rooms_plan(2)])
+        try:
+            data = collect_teacher(envs, 24, args.gamma, seed=0)
+        finally:
+            envs.close()
+        known = np.isfinite(data.returns)
+        assert known.tolist() == [True] * finished + [False] * (24 - finished)
+        torch.manual_seed(0)
+        model = build_model(args, torch.device("cpu"))
+        stats = warm_start(model, data, args, torch.device("cpu"), log=lambda _m: None)
+        assert stats["value_decisions"] == finished and np.isfinite(stats["bc_value_loss"])
+        assert all(torch.isfinite(p).all() for p in model.parameters())
