@@ -129,3 +129,33 @@ def test_collected_teacher_data_gives_no_return_to_truncated_or_unfinished_episo
         stats = warm_start(model, data, args, torch.device("cpu"), log=lambda _m: None)
         assert stats["value_decisions"] == finished and np.isfinite(stats["bc_value_loss"])
         assert all(torch.isfinite(p).all() for p in model.parameters())
+
+
+def test_the_training_env_ends_at_reset_an_episode_that_evaluation_ends_before_its_first_decision():
+    """``Explorer.run`` (eval) ends an episode whose first scan already meets section 4.1's end at 0 steps; the training
+    env asked for a decision there and ran it, so training saw transitions that evaluation never makes. Two rooms, a
+    360-degree LiDAR and an end at 40 % coverage: the first scan covers about 70 %, a frontier still open at the door."""
+    import dataclasses
+
+    from cso_runtime.config import ExplorationConfig, SensorConfig
+    from cso_runtime.episode import run_episode
+    from cso_runtime.learned.env import EnvConfig, ExplorationEnv
+    from cso_runtime.policies import BASELINES
+    from cso_runtime.simulator import KinematicSimulator
+
+    base = ExplorationConfig()
+    exploration = dataclasses.replace(
+        base,
+        sensor=SensorConfig.preset("lidar", 360.0),
+        episode=dataclasses.replace(base.episode, done_coverage_pct=40.0, done_unexplored_m2=100.0),
+    )
+    plan = rooms_plan(2)
+    evaluated = run_episode(
+        KinematicSimulator(plan, exploration.sensor, exploration.robot, seed=0), BASELINES["greedy-dist"](), exploration
+    )
+    assert (evaluated.terminated_by, evaluated.steps) == ("coverage", 0)
+    env = ExplorationEnv([plan], EnvConfig(exploration=exploration, max_steps=200))
+    _, info = env.reset(seed=0)
+    assert (info["terminated_by"], info["steps"]) == ("coverage", 0)
+    _, reward, terminated, truncated, end = env.step(0)
+    assert (reward, terminated, truncated, end["steps"]) == (0.0, True, False, 0)
