@@ -8,6 +8,7 @@ import csv
 import numpy as np
 import torch
 
+from cso_runtime.geometry import Pose2D
 from cso_runtime.learned.network import CategoricalMasked
 from cso_runtime.learned.ppo import (
     Args,
@@ -159,3 +160,67 @@ def test_the_training_env_ends_at_reset_an_episode_that_evaluation_ends_before_i
     assert (info["terminated_by"], info["steps"]) == ("coverage", 0)
     _, reward, terminated, truncated, end = env.step(0)
     assert (reward, terminated, truncated, end["steps"]) == (0.0, True, False, 0)
+
+
+def test_the_trainer_bootstraps_a_truncation_with_the_value_of_its_final_observation_and_not_a_termination(tmp_path, monkeypatch):
+    """What PPO's GAE is given, step by step, against what the envs returned: a step cut by the step limit gets
+    gamma x V(final_obs), the observation the cut left, never the next episode's first (same-step autoreset); a
+    finished map gets nothing more; and either ends the bootstrap (``dones`` of the next step). Frozen network
+    (learning rate 0), so V is the saved weights'. Three rooms are cut at 10 control steps; one room is finished at once."""
+    from cso_runtime.learned import ppo
+    from cso_runtime.learned.registry import load_checkpoint
+
+    steps: list[tuple] = []
+    gae_inputs: list[tuple] = []
+    make_vector_env_, compute_gae_ = ppo.make_vector_env, ppo.compute_gae
+
+    def recording_envs(args, refs):
+        envs = make_vector_env_(args, refs)
+        step = envs.step
+
+        def recorded(actions):
+            result = step(actions)
+            steps.append(
+                (result[0], np.array(result[1], dtype=np.float64), *result[2:])
+            )  # a copy: the trainer adds to its rewards
+            return result
+
+        envs.step = recorded
+        return envs
+
+    monkeypatch.setattr(ppo, "make_vector_env", recording_envs)
+    monkeypatch.setattr(ppo, "compute_gae", lambda *given: gae_inputs.append(given) or compute_gae_(*given))
+    args = Args(
+        variant="cso",
+        out_dir=str(tmp_path),
+        seed=0,
+        total_decisions=64,
+        num_envs=2,
+        num_steps=32,
+        num_minibatches=2,
+        max_steps=10,
+        learning_rate=0.0,
+        lidar_fov_deg=360,
+        progress=False,
+    )
+    whole_at_once = rooms_plan(1, start=Pose2D(1.5, 1.5, 0.0))  # its first scan explores it: over at its first step
+    train(args, log=lambda _m: None, plans=[rooms_plan(3), whole_at_once])
+    model, _, _ = load_checkpoint(tmp_path / "cso.pt")
+    assert len(steps) == 32 and len(gae_inputs) == 1
+    rewards, _, dones, _, next_done, discounts, _ = gae_inputs[0]
+    seen = {"terminated": 0, "truncated": 0}
+    for t, (obs, reward, terminated, truncated, info) in enumerate(steps):
+        expected = np.asarray(reward, dtype=np.float64).copy()
+        for i in np.flatnonzero(truncated):
+            final = info["final_obs"][i]
+            assert not all(np.array_equal(final[k], obs[k][i]) for k in final)  # the cut's state, not the reset's
+            with torch.no_grad():
+                value = model.get_value(obs_to_torch({k: v[None] for k, v in final.items()}, torch.device("cpu")))
+            expected[i] += args.gamma * float(value)
+        np.testing.assert_allclose(rewards[t].numpy(), expected, rtol=0, atol=1e-5)
+        ended = np.logical_or(terminated, truncated).astype(np.float32)
+        np.testing.assert_array_equal((dones[t + 1] if t + 1 < len(steps) else next_done).numpy(), ended)
+        seen["terminated"] += int(terminated.sum())
+        seen["truncated"] += int(truncated.sum())
+    assert seen["terminated"] and seen["truncated"], seen  # both kinds of end happened
+    assert torch.equal(discounts, torch.full_like(discounts, args.gamma))
