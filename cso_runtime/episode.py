@@ -320,11 +320,18 @@ class Explorer:
     def done(self) -> bool:
         return self.terminated_by is not None
 
+    def end_if_covered(self) -> None:
+        """End the episode by coverage if the map already covers the plan (section 4.1's end, which ``advance`` tests
+        only after a step): before the first decision, where the first scan may have explored enough. ``run`` and the
+        training env (``learned.env.ExplorationEnv.reset``) both start so, so that training never asks for a decision
+        in an episode that evaluation ends at once."""
+        if not self.done and self.coverage_done():
+            self.terminated_by = TERMINATED_COVERAGE
+
     def run(self, policy: GoalSelector, on_step: Callable[[Explorer], None] | None = None) -> EpisodeResult:
         """Explore with ``policy`` from the current state until termination (``on_step(self)`` after
         each step). A copy of an explorer taken at a decision can be run on with another policy."""
-        if not self.done and self.coverage_done():
-            self.terminated_by = TERMINATED_COVERAGE
+        self.end_if_covered()
         while not self.done:
             reason = self.decision_reason()
             if reason is not None:

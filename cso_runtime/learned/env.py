@@ -278,6 +278,7 @@ class ExplorationEnv(gym.Env):
         sim_seed = int(self.np_random.integers(2**31))  # sensor noise, when configured
         sim = KinematicSimulator(plan, self.config.exploration.sensor, self.config.exploration.robot, seed=sim_seed)
         self.explorer = Explorer(sim, self._explorer_config())
+        self.explorer.end_if_covered()  # as eval's Explorer.run starts: a first scan that explored enough ends it
         self.masker.reset()
         self.plan_name = plan.name
         self.invalid_actions = self._invalid_in_a_row = 0

@@ -884,7 +884,7 @@ def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.v
 @dataclass
 class TeacherData:
     """Teacher decisions to imitate, one row each: the graph seen, the action mask, the teacher's choice, the
-    discounted return that followed (for the critic) and, from the rollout teacher, each tried cluster's
+    discounted return that followed (for the critic; NaN where it is not known: ``collect_teacher``) and, from the rollout teacher, each tried cluster's
     episode length in control steps (``inf`` where not tried). Saved as one compressed ``.npz``, so an
     expensive collection (``collect-teacher``) is done once and reused by several training runs."""
 
@@ -956,10 +956,10 @@ def collect_teacher(
     stop_requested: Callable[[], bool] | None = None,
 ) -> TeacherData:
     """Run the ``teacher`` (under the masks) in ``envs`` for ``decisions`` decisions, or until ``time_limit_s``
-    (0 = no limit) has passed; returns what ``TeacherData`` holds, with Monte-Carlo returns cut at episode
-    ends. ``log`` gets a line at every tenth of the way (the rollout teacher can take many minutes),
+    (0 = no limit) has passed; returns what ``TeacherData`` holds, with the Monte-Carlo return of each decision
+    whose episode terminated in the collection (``teacher_returns``), NaN for the others. ``log`` gets a line at every tenth of the way (the rollout teacher can take many minutes),
     ``progress`` shows a bar; ``stop_requested`` as ``train``'s."""
-    graphs, masks, actions, steps, rewards, ends = [], [], [], [], [], []
+    graphs, masks, actions, steps, rewards, terminals, cuts = [], [], [], [], [], [], []
     obs, info = envs.reset(seed=seed)
     n = envs.num_envs
     per_env = max(1, decisions // n)
@@ -982,20 +982,33 @@ def collect_teacher(
             steps.append(np.stack([s for _, s in labels]))
             obs, reward, term, trunc, info = envs.step(chosen)
             rewards.append(reward)
-            ends.append(np.logical_or(term, trunc))
+            terminals.append(term)
+            cuts.append(trunc)
             if bar is not None:
                 bar.advance(n)
     finally:  # stopped too (a stop, Ctrl-C): a bar left running goes on drawing and keeps the terminal's cursor hidden
         if bar is not None:
             bar.close()
-    rewards_a, ends_a = np.array(rewards), np.array(ends)
-    returns = np.zeros_like(rewards_a)
-    running = np.zeros(n)
-    for t in reversed(range(len(rewards_a))):
-        running = rewards_a[t] + gamma * running * (1.0 - ends_a[t])
-        returns[t] = running
+    returns = teacher_returns(np.array(rewards, dtype=np.float64), np.array(terminals, dtype=bool), np.array(cuts, dtype=bool), gamma)
     flat = {k: np.concatenate([g[k] for g in graphs]) for k in graphs[0]}
     return TeacherData(flat, np.concatenate(masks), np.concatenate(actions), returns.reshape(-1).astype(np.float32), np.concatenate(steps))
+
+
+def teacher_returns(rewards: np.ndarray, terminated: np.ndarray, truncated: np.ndarray, gamma: float) -> np.ndarray:
+    """The discounted return from each decision of a (T, E) collection to its episode's end, the warm start's critic
+    targets: known only where the episode terminated (a finished map) within the collection. Where it was truncated
+    (the step limit) or was still going when the collection stopped, what followed the cut is not in the data (PPO
+    bootstraps it with V, ``_train_on``; there is no critic yet to bootstrap with here): those rows are NaN, not the
+    partial sum, which would teach the critic that a cut is an end worth nothing more."""
+    returns = np.full(rewards.shape, np.nan)
+    running = np.zeros(rewards.shape[1:])
+    known = np.zeros(rewards.shape[1:], dtype=bool)  # the collection's end: the episodes in progress are unknown
+    for t in reversed(range(len(rewards))):
+        ended = terminated[t] | truncated[t]
+        known = np.where(ended, terminated[t], known)
+        running = rewards[t] + gamma * running * (1.0 - ended)
+        returns[t] = np.where(known, running, np.nan)
+    return returns
 
 
 def _collect_worker(job: tuple[Args, list[SceneRef], int, int, float]) -> TeacherData:
@@ -1050,11 +1063,14 @@ def warm_start(
     model: GraphActorCritic, data: TeacherData, args: Args, device: torch.device, log: Callable[[str], None], stop_requested: Callable[[], bool] | None = None
 ) -> dict[str, float]:
     """Behaviour cloning of the actor on the teacher's choices (or on ``soft_targets`` of the rollout's
-    outcomes) plus a value regression; ``stop_requested`` as ``train``'s."""
+    outcomes) plus a value regression on the decisions whose return is known (``teacher_returns``; none: no value
+    loss); ``stop_requested`` as ``train``'s."""
     b_obs = obs_to_torch(data.graphs, device)
     b_mask = mask_to_torch(data.masks, device)
     b_act = torch.as_tensor(data.actions, device=device)
     b_ret = torch.as_tensor(data.returns, dtype=torch.float32, device=device)
+    b_known = torch.isfinite(b_ret)  # the critic fits the decisions whose return is known (``teacher_returns``)
+    b_ret = torch.where(b_known, b_ret, 0.0)  # no NaN in the graph: its gradient would be NaN even where unused
     b_target = soft_targets(torch.as_tensor(data.outcome_steps, device=device), b_act, args.warm_start_soft_steps)
     opt = optim.Adam(model.parameters(), lr=args.warm_start_lr)
     n = len(b_act)
@@ -1071,7 +1087,8 @@ def warm_start(
             log_p = torch.log_softmax(logits, -1)
             target = b_target[idx]
             ce = -(target * torch.where(target > 0, log_p, 0.0)).sum(-1).mean()
-            v_loss = ((model.get_value(g) - b_ret[idx]) ** 2).mean()
+            known = b_known[idx]
+            v_loss = torch.where(known, (model.get_value(g) - b_ret[idx]) ** 2, 0.0).sum() / known.sum().clamp(min=1)
             loss = ce + args.vf_coef * v_loss
             opt.zero_grad()
             loss.backward()
@@ -1079,7 +1096,7 @@ def warm_start(
             opt.step()
             correct += (logits.argmax(-1) == b_act[idx]).float().sum().item()
             total_ce += ce.item() * len(idx)
-        stats = {"bc_accuracy": correct / n, "bc_ce": total_ce / n, "bc_value_loss": v_loss.item()}
+        stats = {"bc_accuracy": correct / n, "bc_ce": total_ce / n, "bc_value_loss": v_loss.item(), "value_decisions": int(b_known.sum())}
         log(f"warm start epoch {epoch + 1}/{args.warm_start_epochs}: accuracy {stats['bc_accuracy']:.3f} ce {stats['bc_ce']:.3f}")
     return stats
 
