@@ -39,6 +39,23 @@ TOPICS = {
 }
 """Topic name -> key suffix under ``cso/<robot>/``."""
 
+CONTROL_TOPICS = ("explore_resume",)
+"""Topics that are controls, not data of a step (an operator's pause or resume): a service's inbox, full under an
+overload, drops its oldest data input and never one of these while data waits (``services.common.Inbox``)."""
+
+_CONTROL_SUFFIXES = frozenset(TOPICS[name] for name in CONTROL_TOPICS)
+_CONTROL_ENDINGS = tuple(f"/{suffix}" for suffix in _CONTROL_SUFFIXES)
+
+
+def is_control_key(key_expr: str) -> bool:
+    """Whether the concrete key ``cso/<robot>/<suffix>`` is of a control topic (``CONTROL_TOPICS``; not a topic of one's
+    own that ends as one, ``ext/explore/resume``). Cheap enough for every input a service queues: a data key costs one
+    ``endswith``."""
+    if not key_expr.endswith(_CONTROL_ENDINGS):
+        return False
+    parts = key_expr.split("/", 2)
+    return len(parts) == 3 and parts[0] == ROOT and parts[2] in _CONTROL_SUFFIXES
+
 CARRIED = {"planner_plan": "planner/plan", "planner_state": "planner/state"}
 """What rides on another topic and has only a cache key (``cache/<suffix>``): the planner's plan and state, which its
 ``cmd_vel`` carries (``CmdVelMsg.planner_plan``, ``.planner_state``) so that the lockstep chain pays no message for them."""

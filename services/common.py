@@ -52,7 +52,7 @@ from cso_runtime.config import (
     load_yaml,
 )
 from cso_runtime.geometry import GridGeometry, Pose2D
-from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id, robot_of, topic_of
+from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id, is_control_key, robot_of, topic_of
 from cso_runtime.messages import (
     DEFAULT_MAX_GRID_CELLS,
     CmdVelMsg,
@@ -500,8 +500,8 @@ The slowest handlers take well under a second (a decision on a large map)."""
 
 INBOX_LIMIT = 100_000
 """The most inputs a service keeps waiting for its loop (real time; lockstep, until it handles them on arrival), and
-``INBOX_MAX_BYTES`` the most bytes of their payloads: past either the oldest input is dropped, a rejection of its topic
-(``status`` shows it). Unbounded, a handler slower than its inputs come (a mapper on a large grid, a flood on one key)
+``INBOX_MAX_BYTES`` the most bytes of their payloads: past either the oldest data input is dropped, a rejection of its
+topic (``status`` shows it), never a control (an operator's pause) while data waits (``Inbox``). Unbounded, a handler slower than its inputs come (a mapper on a large grid, a flood on one key)
 grew the service's memory, and the age of what it acted on, for as long as it ran. A service keeps up with its inputs
 but for bursts: ``replay --speed max`` of an hour's recording (36,000 scans of 1.5 kB) fits, and loses nothing."""
 
@@ -509,22 +509,48 @@ INBOX_MAX_BYTES = 256 << 20
 """The most bytes of payloads waiting for a service's loop (``INBOX_LIMIT``)."""
 
 
-class Inbox(queue.Queue[tuple[str, bytes, float]]):
-    """``queue.Queue`` of a service's inputs ``(key, payload, received_s)`` that keeps the bytes of their payloads
-    (``nbytes``), counted under the queue's own lock as items come and go."""
+Item = tuple[str, bytes, float]
+"""An input waiting for a service's loop: ``(key, payload, received_s)``."""
 
-    def __init__(self) -> None:
-        super().__init__()
+
+class Inbox(queue.Queue[Item]):
+    """``queue.Queue`` of a service's inputs ``(key, payload, received_s)`` that keeps the bytes of their payloads
+    (``nbytes``), counted under the queue's own lock as items come and go. Controls (``keys.is_control_key``: an
+    operator's pause or resume) wait in a line of their own beside the data, each input numbered as it comes, so that
+    ``get`` still hands every input out in the order it came while ``drop_oldest`` drops the oldest data input at the
+    cost of one ``popleft``: under an overload a pause among the data was dropped as the oldest input, and the robot
+    did not stop. Only an inbox of controls alone (a flood of them) drops its oldest control: the newest says the state."""
+
+    def _init(self, maxsize: int) -> None:
+        self.data: collections.deque[tuple[int, Item]] = collections.deque()
+        self.controls: collections.deque[tuple[int, Item]] = collections.deque()
+        self.arrivals = 0
         self.nbytes = 0
 
-    def _put(self, item: tuple[str, bytes, float]) -> None:
-        self.nbytes += len(item[1])
-        super()._put(item)
+    def _qsize(self) -> int:
+        return len(self.data) + len(self.controls)
 
-    def _get(self) -> tuple[str, bytes, float]:
-        item = super()._get()
+    def _put(self, item: Item) -> None:
+        self.nbytes += len(item[1])
+        self.arrivals += 1
+        (self.controls if is_control_key(item[0]) else self.data).append((self.arrivals, item))
+
+    def _get(self) -> Item:
+        data, controls = self.data, self.controls
+        line = controls if controls and (not data or controls[0][0] < data[0][0]) else data
+        item = line.popleft()[1]
         self.nbytes -= len(item[1])
         return item
+
+    def drop_oldest(self) -> Item | None:
+        """Take out the oldest data input (the oldest control when only controls wait); None when nothing waits."""
+        with self.mutex:
+            line = self.data or self.controls
+            if not line:
+                return None
+            item = line.popleft()[1]
+            self.nbytes -= len(item[1])
+            return item
 
 
 def topic_name(key: str) -> str:
@@ -606,12 +632,13 @@ class ServiceInputs:
                     prof.disable()
 
     def drop_oldest(self) -> bool:
-        """Drop the oldest input waiting (the inbox is full), counted as a rejection of its topic and robot; False when
-        none waits (the loop took the last one meanwhile). Called under ``_switching``, by the one thread that puts."""
-        try:
-            key = self.queue.get_nowait()[0]
-        except queue.Empty:
+        """Drop the oldest data input waiting (the inbox is full; never a control while data waits: ``Inbox.drop_oldest``),
+        counted as a rejection of its topic and robot; False when none waits (the loop took the last one meanwhile).
+        Called under ``_switching``, by the one thread that puts."""
+        dropped = self.queue.drop_oldest()
+        if dropped is None:
             return False
+        key = dropped[0]
         robot: str | None
         try:
             robot, topic = robot_of(key), topic_of(key)
@@ -753,18 +780,31 @@ def _say_if_launcher_gone(name: str) -> None:
 
 
 PENDING_STEPS_KEPT = 256
-"""Real time: the most steps of one input a service keeps while it waits for their partner of the same step (the
-frontier service's maps and odometry, the planner's odometry and scans) or for a decision (the frontier service's
-planner reports). Real time acts on the newest step and drops the older ones at each step it acts on; while one input
-is silent (a mapper that died and was given up on, a LiDAR driver that stopped) nothing is acted on, and each of the
-other input's steps was kept for as long as the episode ran (a robot's odometry at 50 Hz: 180,000 a hour). 256 steps
-are 25 s at the sim's 10 Hz, far more than any input lags behind its partner."""
+"""Real time: how many steps of a large per-step input (a map, a scan) a service keeps while it waits for its partner
+of the same step (``keep_newest``: the 256 newest, at most 288): the frontier service's maps waiting for their
+odometry, the planner's scans for theirs. Real time acts on the newest step that has both and drops every older one,
+so of these only the newest ever matters, and they wait only while their odometry is in flight: the referee (sim,
+ROS 2 bridge, a replay) sends a step's odometry with its scan, and the mapper builds each map from a scan, not from
+the odometry. While the odometry was silent, each map (two bytes a cell decoded: 8 MB at the default
+``max_grid_cells``) was kept for as long as the episode ran. Small inputs have ``PENDING_SMALL_STEPS_KEPT``."""
+
+PENDING_SMALL_STEPS_KEPT = INBOX_LIMIT
+"""Real time: how many steps of a small per-step input (odometry, the planner's reports: about 0.4 kB each decoded, a
+report's path ahead besides, 16 bytes a point) a service keeps while it waits for its partner of the same step or for
+a decision (``keep_newest``: the 100,000 newest, at most 112,500): the frontier service's odometry and planner reports
+waiting for maps, the planner's odometry waiting for scans. The partner may lag far: ``replay --speed max`` into a
+fresh pipeline sends the odometry thousands of steps ahead of a mapper that recomputes the maps, and each map needs
+the odometry of its own step; trimmed to 256 steps, the frontier service decided nothing until the maps were within
+256 steps of the odometry. As many as the inbox holds (``INBOX_LIMIT``): whatever lag the inbox takes without a loss,
+the steps waiting here take too. A partner that is dead (a mapper given up on, a LiDAR driver that stopped) no longer
+grows the service for as long as the episode runs: about 50 MB of odometry at most."""
 
 
 def keep_newest(pending: dict[int, Any], n: int) -> None:
-    """Drop all but the ``n`` newest steps of ``pending`` (in place); a dict of at most ``n`` is left as it is at the
-    cost of one ``len``."""
-    if len(pending) > n:
+    """Keep the ``n`` newest steps of ``pending`` (in place), and at most ``n + n // 8``: past that it drops all but the
+    ``n`` newest, so the sort is paid once per ``n // 8`` steps kept (a partner silent for long costs no sort of
+    100,000 steps per input). Below that it costs one ``len``."""
+    if len(pending) > n + n // 8:
         for step in sorted(pending)[:-n]:
             del pending[step]
 

@@ -41,7 +41,16 @@ from cso_runtime.observation import FrontierLayer, Observation, ObservationBuild
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
-from services.common import PENDING_STEPS_KEPT, EpisodeWatch, Service, ServiceContext, keep_newest, service_main, warm_up_map
+from services.common import (
+    PENDING_SMALL_STEPS_KEPT,
+    PENDING_STEPS_KEPT,
+    EpisodeWatch,
+    Service,
+    ServiceContext,
+    keep_newest,
+    service_main,
+    warm_up_map,
+)
 from services.frontier_layer import FrontierLayerWorker
 
 log = logging.getLogger("cso.frontier")
@@ -359,8 +368,8 @@ class FrontierService(Service):
         if isinstance(msg, PlannerFeedbackMsg):
             if msg.phase == "command" and step >= self.done_step - 1:
                 self.feedback[step] = msg
-                if not self.ctx.lockstep:  # no map (a mapper gone): no decision prunes them
-                    keep_newest(self.feedback, PENDING_STEPS_KEPT)
+                if not self.ctx.lockstep:  # no map (a mapper gone): no decision prunes them; a map far behind needs them
+                    keep_newest(self.feedback, PENDING_SMALL_STEPS_KEPT)
                 self.try_decide()
             return
         if isinstance(msg, MapMsg) and self.of_another_grid(msg, robot):
@@ -371,12 +380,12 @@ class FrontierService(Service):
             return
         if isinstance(msg, MapMsg):
             self.maps[step] = msg
-            if not self.ctx.lockstep:  # odometry silent: no map finds its partner
+            if not self.ctx.lockstep:  # odometry silent: no map finds its partner (large: only the newest matters)
                 keep_newest(self.maps, PENDING_STEPS_KEPT)
         elif isinstance(msg, OdometryMsg):
             self.odoms[step] = msg
-            if not self.ctx.lockstep:  # no map (a mapper gone): no odometry finds its partner
-                keep_newest(self.odoms, PENDING_STEPS_KEPT)
+            if not self.ctx.lockstep:  # bounded for a mapper gone; 100,000 steps for one far behind (replay --speed max)
+                keep_newest(self.odoms, PENDING_SMALL_STEPS_KEPT)
         self.try_decide()
 
     def end_episode(self, how: str) -> None:
@@ -453,15 +462,20 @@ class FrontierService(Service):
         return self.deferred_inputs > DEFER_MAX_INPUTS or now_s - self.deferred_since_s >= DEFER_MAX_S
 
     def try_decide(self) -> None:
-        ready = sorted(set(self.maps) & set(self.odoms))
+        # The maps' steps, not the odometry's: far fewer wait (``PENDING_STEPS_KEPT``) than odometry may, ahead of a
+        # mapper far behind (``PENDING_SMALL_STEPS_KEPT``), and this runs on every input.
+        ready = sorted(s for s in self.maps if s in self.odoms)
         if not ready:
             return
         k = ready[0] if self.ctx.lockstep else ready[-1]
-        fb = self.planner_state(k)
-        if self.ctx.lockstep and (self.awaiting_goal_step is not None or (k > 0 and fb is None)):
-            return  # the last decision's goal, or the planner's report on step k - 1, is on its way
-        if not self.ctx.lockstep and self.backlog() > 0 and not self.deferred_too_long():
+        if self.ctx.lockstep:
+            fb = self.planner_state(k)
+            if self.awaiting_goal_step is not None or (k > 0 and fb is None):
+                return  # the last decision's goal, or the planner's report on step k - 1, is on its way
+        elif self.backlog() > 0 and not self.deferred_too_long():
             return  # real time: newer inputs are waiting; decide on the newest
+        else:
+            fb = self.planner_state(k)  # after the check: it reads every report waiting
         self.deferred_since_s, self.deferred_inputs = None, 0
         waiting = self.awaiting_goal_step is not None and time.monotonic() - self.awaiting_since_s < self.params.goal_wait_s
         m, odom = self.maps.pop(k), self.odoms.pop(k)

@@ -44,6 +44,7 @@ from cso_runtime.messages import (
 from cso_runtime.pause import LOCKSTEP_REFUSAL
 from cso_runtime.planner import FollowResult, FreeSpace, LocalPlanner, PlannerStatus
 from services.common import (
+    PENDING_SMALL_STEPS_KEPT,
     PENDING_STEPS_KEPT,
     EpisodeWatch,
     Service,
@@ -320,10 +321,10 @@ class PlannerService(Service):
         if isinstance(msg, OdometryMsg):
             self.odoms[step] = (msg, received_s)
             if not self.ctx.lockstep:  # a LiDAR gone silent must not grow the odometry kept for its scans without bound
-                keep_newest(self.odoms, PENDING_STEPS_KEPT)
+                keep_newest(self.odoms, PENDING_SMALL_STEPS_KEPT)
         elif isinstance(msg, ScanMsg):
             self.scans[step] = (msg, received_s)
-            if not self.ctx.lockstep:  # nor odometry gone silent the scans
+            if not self.ctx.lockstep:  # nor odometry gone silent the scans (large: only the newest pair is commanded)
                 keep_newest(self.scans, PENDING_STEPS_KEPT)
         elif isinstance(msg, FrontiersMsg) and (msg.decide or self.ctx.lockstep):
             self.frontiers[step] = msg  # real time needs only those that carry a decision's grids
@@ -387,7 +388,7 @@ class PlannerService(Service):
             if decided and self.paused is None:
                 s = max(decided)
                 self.apply_goal(self.frontiers[s], self.goals[s])
-            k = max((s for s in self.odoms if s > self.cmd_step and s in self.scans), default=-1)
+            k = max((s for s in self.scans if s > self.cmd_step and s in self.odoms), default=-1)  # the fewer: scans
             if k >= 0:
                 self.on_command(k, None, None)
             return

@@ -4,6 +4,7 @@ and what it has to let go of is counted where ``status`` shows it."""
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import threading
 import time
@@ -18,28 +19,79 @@ from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import ClockMsg, MapMsg, OdometryMsg, PlannerFeedbackMsg, ScanMsg, ServiceStatusMsg, decode, encode
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
-from services.common import PENDING_STEPS_KEPT
+from services.common import PENDING_STEPS_KEPT, topic_name
 from services.frontier import FrontierService
 from services.planner import PlannerService
 from tests.conftest import HANG_DEADLINE_S, wait_for
 from tests.test_service_logic import _explorer_at, _feed, _inputs, _service
 
 
-def test_a_real_time_frontier_service_whose_maps_stopped_keeps_a_bounded_number_of_steps_and_decides_on_the_next_map():
+def _small_bound(monkeypatch: pytest.MonkeyPatch, n: int = 64) -> int:
+    """``PENDING_SMALL_STEPS_KEPT`` lowered to ``n`` in the frontier service and the planner (the real one, 100,000, is
+    too many steps to feed a test); the highest number of steps ``keep_newest`` then keeps."""
+    from services import frontier, planner
+
+    for module in (frontier, planner):
+        monkeypatch.setattr(module, "PENDING_SMALL_STEPS_KEPT", n)
+    return n + n // 8
+
+
+def test_keep_newest_keeps_the_n_newest_steps_and_trims_once_an_eighth_more_wait():
+    """The n newest always stay (a partner lagging fewer steps loses nothing); at most n + n // 8 are kept, and the
+    sort is paid once per n // 8 steps, not on every step past n."""
+    from services.common import keep_newest
+
+    pending: dict[int, None] = {}
+    sizes = []
+    for step in range(1, 200):
+        pending[step] = None
+        keep_newest(pending, 64)
+        assert set(range(max(1, step - 63), step + 1)) <= set(pending)
+        sizes.append(len(pending))
+    trims = [step for step, (a, b) in enumerate(itertools.pairwise(sizes), start=2) if b < a]
+    assert max(sizes) == 64 + 8 and trims == list(range(73, 200, 9))  # back to 64 once past 72: every 9th step
+    late = {5: "a", 1: "b", 9: "c", 3: "d"}  # out of order: the newest steps stay, whatever order they came in
+    keep_newest(late, 2)
+    assert late == {5: "a", 9: "c"}
+
+
+def test_a_real_time_frontier_service_whose_maps_stopped_keeps_a_bounded_number_of_steps_and_decides_on_the_next_map(monkeypatch):
     """The mapper gone (died, given up on): odometry and the planner's reports go on at the control rate, and the
     frontier service kept every one of them, waiting for its map, for as long as the episode ran."""
+    most = _small_bound(monkeypatch)
     frontier, out = _service(FrontierService, lockstep=False)
     ex = _explorer_at(0)
     _, odom0, _ = _inputs(ex, 0)
-    last = 3 * PENDING_STEPS_KEPT
+    last = 3 * most
     for step in range(1, last + 1):
         _feed(frontier, OdometryMsg(step, 0.1 * step, odom0.pose))
         _feed(frontier, PlannerFeedbackMsg(step, "idle", "command"))
-    assert len(frontier.odoms) == PENDING_STEPS_KEPT and min(frontier.odoms) == last - PENDING_STEPS_KEPT + 1
-    assert len(frontier.feedback) == PENDING_STEPS_KEPT
+        assert len(frontier.odoms) <= most and len(frontier.feedback) <= most
+    assert set(range(last - 63, last + 1)) <= set(frontier.odoms) and set(range(last - 63, last + 1)) <= set(frontier.feedback)
     _feed(frontier, MapMsg.of(last, ex.map))  # the mapper back: the newest step is decided at once
     assert [(t, m.step, m.decide) for t, m in out if t == "frontiers"] == [("frontiers", last, True)]
     assert not frontier.odoms and not frontier.maps
+
+
+def test_a_real_time_frontier_service_whose_maps_lag_far_behind_its_odometry_decides_on_each_map_as_it_comes():
+    """``replay run.mcap --topics clock,odom,scan --speed max`` into a fresh pipeline (docs/hardware.md): the odometry and
+    the planner's reports come thousands of steps ahead of a mapper that recomputes the maps. Each map needs the
+    odometry of its own step: with 256 steps of odometry kept, every map found its odometry trimmed, and the frontier
+    service decided nothing until the maps were within 256 steps of it. The odometry waits for its map now."""
+    frontier, out = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0})
+    ex = _explorer_at(0)
+    _, odom0, _ = _inputs(ex, 0)
+    ahead = 2000
+    for step in range(ahead + 1):
+        _feed(frontier, OdometryMsg(step, odom0.stamp_s + 0.25 * step, odom0.pose))
+        _feed(frontier, PlannerFeedbackMsg(step, "idle", "command"))
+    maps = 30
+    for step in range(maps):
+        _feed(frontier, MapMsg.of(step, ex.map))
+        assert [m.step for t, m in out if t == "frontiers"][-1:] == [step], f"map {step} was not decided on"
+    decided = [(m.step, m.decide) for t, m in out if t == "frontiers"]
+    assert decided == [(0, True)] + [(step, False) for step in range(1, maps)]  # each after the first waits for its goal
+    assert min(frontier.odoms) == maps and len(frontier.odoms) == ahead + 1 - maps  # the decided steps' are let go
 
 
 def test_a_real_time_frontier_service_whose_odometry_stopped_keeps_a_bounded_number_of_maps():
@@ -47,24 +99,39 @@ def test_a_real_time_frontier_service_whose_odometry_stopped_keeps_a_bounded_num
     ex = _explorer_at(0)
     for step in range(1, 2 * PENDING_STEPS_KEPT + 1):
         _feed(frontier, MapMsg.of(step, ex.map))
-    assert len(frontier.maps) == PENDING_STEPS_KEPT and out == []
+        assert len(frontier.maps) <= PENDING_STEPS_KEPT + PENDING_STEPS_KEPT // 8
+    assert set(range(PENDING_STEPS_KEPT + 1, 2 * PENDING_STEPS_KEPT + 1)) <= set(frontier.maps) and out == []
 
 
-def test_a_real_time_planner_whose_lidar_stopped_keeps_a_bounded_number_of_odometry_steps_and_commands_the_next_scan():
+def test_a_real_time_planner_whose_lidar_stopped_keeps_a_bounded_number_of_odometry_steps_and_commands_the_next_scan(monkeypatch):
     """A LiDAR driver that stopped: the planner said it was stale (no scan), and kept every odometry message (50 Hz
     on a robot) waiting for its scan, for as long as the run went on."""
+    most = _small_bound(monkeypatch)
     planner, out = _service(PlannerService, lockstep=False)
     ex = _explorer_at(0)
     _, odom, scan = _inputs(ex, 0)
-    last = 3 * PENDING_STEPS_KEPT
+    last = 3 * most
     for step in range(1, last + 1):
         _feed(planner, OdometryMsg(step, odom.stamp_s + 0.1 * step, odom.pose))
-    assert len(planner.odoms) == PENDING_STEPS_KEPT
+        assert len(planner.odoms) <= most
     _feed(planner, ScanMsg(last, scan.scan, scan.sensor_pose))
     assert [m.step for t, m in out if t == "cmd_vel"] == [last]
     for step in range(last + 1, last + 1 + 2 * PENDING_STEPS_KEPT):  # and the other way round
         _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose))
-    assert len(planner.scans) == PENDING_STEPS_KEPT
+        assert len(planner.scans) <= PENDING_STEPS_KEPT + PENDING_STEPS_KEPT // 8
+
+
+def test_a_real_time_planner_whose_scans_lag_far_behind_its_odometry_commands_each_scan_as_it_comes():
+    """Scans far behind the odometry (a LiDAR driver that stalled, then caught up): the odometry of their steps waits
+    for them, as the frontier service's waits for its maps."""
+    planner, out = _service(PlannerService, lockstep=False)
+    ex = _explorer_at(0)
+    _, odom, scan = _inputs(ex, 0)
+    for step in range(1, 1001):
+        _feed(planner, OdometryMsg(step, odom.stamp_s + 0.1 * step, odom.pose))
+    for step in range(1, 11):
+        _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose))
+    assert [m.step for t, m in out if t == "cmd_vel"] == list(range(1, 11))
 
 
 @pytest.mark.parametrize("bound", ["INBOX_LIMIT", "INBOX_MAX_BYTES"])
@@ -449,3 +516,48 @@ def test_a_status_whose_reason_names_an_undecodable_file_name_still_encodes():
     policy.set_state("stale", "é" * (MAX_TEXT_CHARS + 10))
     status = decode(encode(policy.status_msg()), ServiceStatusMsg)
     assert status.reason == "é" * (MAX_TEXT_CHARS - 1) + "…"
+
+
+class _KeySample:
+    """What Zenoh hands a subscriber callback: a key expression and a payload."""
+
+    def __init__(self, key: str, payload: bytes) -> None:
+        self.key_expr, self.payload, self._bytes = key, self, payload
+
+    def to_bytes(self) -> bytes:
+        return self._bytes
+
+
+def test_a_full_inbox_drops_its_oldest_data_never_a_pause_waiting_among_them(monkeypatch):
+    """An operator's pause shares a real-time service's inbox with its data: under a sustained overload the inbox
+    dropped its oldest input, the pause as any other, and the planner never stopped the robot. The oldest data input is
+    dropped instead; every input left still comes out in the order it came."""
+    from cso_runtime.messages import ExploreResumeMsg
+    from services import common
+    from services.common import ServiceInputs
+
+    limit = 4
+    monkeypatch.setattr(common, "INBOX_LIMIT", limit)
+    planner, _ = _service(PlannerService, lockstep=False)
+    inputs = ServiceInputs(planner, threading.Event())
+    keys = RobotKeys("r0")
+
+    def odometry(step: int) -> _KeySample:
+        return _KeySample(keys.odom, encode(OdometryMsg(step, 0.25 * step, Pose2D(1.0, 1.0, 0.0))))
+
+    inputs.on_sample(odometry(1))
+    inputs.on_sample(_KeySample(keys.explore_resume, encode(ExploreResumeMsg(False, "op@host"))))
+    for step in range(2, 12):  # the flood: 11 odometry messages, 3 of them kept beside the pause
+        inputs.on_sample(odometry(step))
+    assert planner.rejected == {"odom": 8} and inputs.queue.qsize() == limit
+    queued = [item for _ in range(limit) if (item := inputs.next_queued(0.0)) is not None]
+    assert [topic_name(key) for key, _, _ in queued] == ["resume", "odom", "odom", "odom"]
+    assert [decode(payload, OdometryMsg).step for key, payload, _ in queued[1:]] == [9, 10, 11]
+    for item in queued:
+        inputs.handle(*item)
+    assert planner.paused is not None and planner.paused.by == "op@host"
+    # A flood of controls alone: the oldest go, the newest (which says the state) stays.
+    for i in range(2 * limit):
+        inputs.on_sample(_KeySample(keys.explore_resume, encode(ExploreResumeMsg(i % 2 == 1, f"op{i}"))))
+    left = [decode(item[1], ExploreResumeMsg).by for _ in range(limit) if (item := inputs.next_queued(0.0)) is not None]
+    assert left == [f"op{i}" for i in range(limit, 2 * limit)] and inputs.queue.nbytes == 0
