@@ -566,7 +566,10 @@ def test_real_time_planner_keeps_a_bounded_number_of_decisions_waiting_for_their
     obs = ex.observe()
     for step in range(3 * PENDING_DECISIONS_KEPT):
         _feed(planner, frontiers_from_observation(step, "timeout", obs, 1.0))
-    assert sorted(planner.frontiers) == list(range(2 * PENDING_DECISIONS_KEPT, 3 * PENDING_DECISIONS_KEPT))
+    kept = sorted(planner.frontiers)  # the newest n, and at most n + n // 8 (``keep_newest``)
+    assert kept[-PENDING_DECISIONS_KEPT:] == list(range(2 * PENDING_DECISIONS_KEPT, 3 * PENDING_DECISIONS_KEPT))
+    assert PENDING_DECISIONS_KEPT <= len(kept) <= PENDING_DECISIONS_KEPT + PENDING_DECISIONS_KEPT // 8
+    assert kept == list(range(kept[0], 3 * PENDING_DECISIONS_KEPT))
     _feed(planner, _far_goal(obs, 3 * PENDING_DECISIONS_KEPT - 1))  # the newest decision's goal is still planned
     assert planner.planner.status.value == "following"
 
