@@ -3160,3 +3160,31 @@ def test_ensemble_of_benchmarks_runs_its_episodes_and_checks_each_members_window
     assert summary["methods"]["cso"]["episodes"] == 1, summary.get("failures")
     failed = json.loads((tmp_path / "wide" / "summary.json").read_text())
     assert "trained with frontier.entropy_window_m 4 m, this run's is 2 m" in json.dumps(failed)
+
+
+def test_ensemble_of_benchmarks_decides_over_its_members_graph_not_the_served_weights(tmp_path, monkeypatch):
+    """benchmarks/eval_ensemble.py built each decision's graph with the graph of the weights it serves (the shipped
+    ``cso.pt``: knn 8, distance scale 10 m), not its members': members trained with ``knn=4`` and ``distance_scale_m=5``
+    were given graphs of 8 neighbours and distances at half their scale, without a word (the node features' count is
+    the same). The members must share one graph; the ensemble decides over it."""
+    from cso_runtime import cli
+    from cso_runtime.learned import registry
+    from cso_runtime.learned.ppo import save_weights
+
+    unset_weights_env(monkeypatch)
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    monkeypatch.setattr(registry, "make_learned_policy", registry.make_learned_policy)  # main() replaces it: given back after
+    spec = importlib.util.spec_from_file_location("eval_ensemble", Path(__file__).parents[1] / "benchmarks" / "eval_ensemble.py")
+    ensemble = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ensemble)
+    other = Args(variant="cso", knn=4, distance_scale_m=5.0, cluster_size_feature=True, out_dir=str(tmp_path / "other"))
+    save_weights(tmp_path / "other", build_model(other, torch.device("cpu")), other, {"ppo_decisions": 0})
+    seen: list[GraphConfig] = []
+    decide = ensemble.EnsemblePolicy.probabilities
+    monkeypatch.setattr(ensemble.EnsemblePolicy, "probabilities", lambda self, obs, mask: (seen.append(self.graph_config), decide(self, obs, mask))[1])
+    with pytest.raises(SystemExit):
+        ensemble.main(["--member", str(tmp_path / "other" / "cso.pt"), "--", "--method", "cso", "--lidar-fov", "360", "--workers", "1",
+                       "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / "out")])
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["methods"]["cso"]["episodes"] == 1, summary.get("failures")
+    assert seen and {(g.knn, g.distance_scale_m, g.use_entropy) for g in seen} == {(4, 5.0, True)}, seen[:1]
