@@ -236,11 +236,12 @@ class StepTimeline:
         """The bag time of a message that carries only its step (a map, a goal...) and perhaps its episode id: its
         step's in its episode (an episode left, for a late one: its step's, else its last), else the latest (also for
         an episode the timeline has not begun: its first scan or odometry is yet to come)."""
-        if episode and self.episode and episode != self.episode:
+        if episode and episode != self.episode:
             if episode in self.left:
                 by_step = self.left[episode][1]
                 return self.ns(by_step.get(step, max(by_step.values(), default=self.last_s)))
-            return self.ns(self.last_s)
+            if self.episode:  # not the current one, nor one left: one to come (with no id known now, any of them)
+                return self.ns(self.last_s)
         return self.ns(self.by_step.get(step, self.last_s))
 
 

@@ -696,3 +696,7 @@ def test_a_late_message_of_any_episode_left_keeps_its_times_and_one_of_an_episod
     legacy = StepTimeline(T0_NS)
     assert [legacy.stamp(k, 0.25 * k) for k in (0, 1, 2, 0)] == [T0_NS + k * 250_000_000 for k in range(4)]
     assert legacy.at(0) == T0_NS + 750_000_000 and legacy.at(1) == T0_NS + 750_000_000 and legacy.at(1, 9) == T0_NS + 750_000_000
+    # An episode of ids, then one of none told by its steps: a late map of the first keeps its time.
+    mixed = StepTimeline(T0_NS)
+    assert [mixed.stamp(k, 0.25 * k, 5) for k in (0, 1, 2)] + [mixed.stamp(k, 0.25 * k) for k in (0, 1)] == [T0_NS + k * 250_000_000 for k in range(5)]
+    assert mixed.at(1, 5) == T0_NS + 250_000_000 and mixed.at(1) == T0_NS + 1_000_000_000
