@@ -36,6 +36,8 @@ from cso_runtime.comparison import (
     format_interval,
     labelled,
     mixed_setups_said,
+    no_baseline_said,
+    no_episode_said,
     scene_key,
     whole_rows,
 )
@@ -95,13 +97,8 @@ def pooled_rows(files: list[tuple[str, Path]]) -> list[dict[str, Any]]:
     return list(pooled.values())
 
 
-def no_episode(files: list[tuple[str, Path]]) -> str:
-    """What is said of files that hold no episode, in ``compare``'s words."""
-    return f"these files hold no episode: {', '.join(str(path) for _, path in files)}"
-
-
 class NoEpisode(ValueError):
-    """Files that hold no episode (``no_episode``): exit 1, as ``compare`` (they read, and hold nothing to table)."""
+    """Files that hold no episode (``comparison.no_episode_said``): exit 1, as ``compare`` (they read, and hold nothing to table)."""
 
 
 class Pooled(NamedTuple):
@@ -121,11 +118,11 @@ def pool(files: list[tuple[str, Path]], baseline: str) -> Pooled:
     row's paired column empty, a table that looked like one of no scene in common."""
     episodes = pooled_rows(files)
     if not episodes:
-        raise NoEpisode(no_episode(files))
+        raise NoEpisode(no_episode_said(files))
     known = [baseline, *BASELINES, *LEARNED_METHODS]
     methods = sorted(dict.fromkeys(r["method"] for r in episodes), key=lambda m: known.index(m) if m in known else len(known))
     if baseline not in methods:
-        raise ValueError(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(sorted(methods))}")
+        raise ValueError(no_baseline_said(baseline, methods))
     summary = summarize(episodes, [], methods, meta={}, baseline="")
     by_scale = {(m, s): e for m in methods for s, e in summary["methods"][m]["by_scale"].items()}
     paired = {(c.method, c.scale): c for c in compare_to_baseline(efficiency_by_scene(episodes), baseline)}
@@ -191,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             parser.error(f"{p}: not a summary.json eval wrote ({type(exc).__name__}: {exc})")
     if not lines:  # summaries of no episode ({"methods": {}}): not a table of headers alone and exit 0
-        parser.exit(1, f"{parser.prog}: error: {no_episode(files)}\n")
+        parser.exit(1, f"{parser.prog}: error: {no_episode_said(files)}\n")
     print(HEADER)
     print("| --- " * 9 + "|")
     for line in lines:
