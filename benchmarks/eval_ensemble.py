@@ -61,6 +61,9 @@ def main(argv: list[str] | None = None) -> int:
         # loaded by their paths, are held to the run's frontier settings as the weights served are.
         base = make(name, mask_config, seed=seed, device=device, sensor=sensor, frontier=frontier)
         use_entropy = registry.VARIANTS[name].use_entropy
+        others = [f"{path} holds weights trained as {ckpt['variant']!r}" for path, (_, _, ckpt) in zip(args.member, loaded, strict=True) if ckpt.get("variant") not in (None, name)]
+        if others:  # as a method's own weights file of another variant is refused (registry._model_for)
+            raise registry.CheckpointError(f"{'; '.join(others)}, not {name!r}: an ensemble of --method {name} takes members trained as {name}")
         refused = [
             mismatch.said(name, Path(path))
             for path, (_, graph, ckpt) in zip(args.member, loaded, strict=True)

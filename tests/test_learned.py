@@ -3188,3 +3188,26 @@ def test_ensemble_of_benchmarks_decides_over_its_members_graph_not_the_served_we
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["methods"]["cso"]["episodes"] == 1, summary.get("failures")
     assert seen and {(g.knn, g.distance_scale_m, g.use_entropy) for g in seen} == {(4, 5.0, True)}, seen[:1]
+
+
+def test_ensemble_of_benchmarks_refuses_members_of_another_variant(tmp_path, monkeypatch):
+    """A member trained as ``cso-no-info`` (its entropy input 0 throughout training) in an ensemble run as
+    ``--method cso`` was fed the entropy input it never saw, where the method's own weights file of another variant is
+    refused (``registry._model_for``). It is refused so, naming the member."""
+    from cso_runtime import cli
+    from cso_runtime.learned import registry
+    from cso_runtime.learned.ppo import save_weights
+
+    unset_weights_env(monkeypatch)
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    monkeypatch.setattr(registry, "make_learned_policy", registry.make_learned_policy)  # main() replaces it: given back after
+    spec = importlib.util.spec_from_file_location("eval_ensemble", Path(__file__).parents[1] / "benchmarks" / "eval_ensemble.py")
+    ensemble = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ensemble)
+    blind = Args(variant="cso-no-info", cluster_size_feature=True, out_dir=str(tmp_path / "blind"))
+    save_weights(tmp_path / "blind", build_model(blind, torch.device("cpu")), blind, {"ppo_decisions": 0})
+    with pytest.raises(SystemExit):
+        ensemble.main(["--member", str(tmp_path / "blind" / "cso-no-info.pt"), "--", "--method", "cso", "--lidar-fov", "360", "--workers", "1",
+                       "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / "out")])
+    failed = json.dumps(json.loads((tmp_path / "out" / "summary.json").read_text()))
+    assert "cso-no-info.pt holds weights trained as 'cso-no-info'" in failed, failed[:2000]
