@@ -3211,3 +3211,34 @@ def test_ensemble_of_benchmarks_refuses_members_of_another_variant(tmp_path, mon
                        "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / "out")])
     failed = json.dumps(json.loads((tmp_path / "out" / "summary.json").read_text()))
     assert "cso-no-info.pt holds weights trained as 'cso-no-info'" in failed, failed[:2000]
+
+
+def test_a_checkpoints_header_reads_without_torch_as_torch_loads_it_and_runs_none_of_its_code(tmp_path):
+    """``weights.checkpoint_header`` (``up``'s window check before anything starts) reads what ``torch.load`` gives of a
+    checkpoint's plain data, and the frontier settings every load compares (``registry.trained_frontier``); a pickle
+    that would call anything but torch's tensor rebuilding is not read (None), nor is a file of another kind."""
+    import pickle
+    import zipfile
+
+    from cso_runtime.config import FrontierConfig
+    from cso_runtime.learned.ppo import save_weights
+    from cso_runtime.learned.registry import trained_frontier
+    from cso_runtime.learned.weights import checkpoint_header, recorded_frontier
+
+    wide = Args(variant="cso", entropy_window_m=4.0, out_dir=str(tmp_path))
+    save_weights(tmp_path, build_model(wide, torch.device("cpu")), wide, {"ppo_decisions": 0})
+    ckpt = torch.load(tmp_path / "cso.pt", map_location="cpu", weights_only=True)
+    header = checkpoint_header(tmp_path / "cso.pt")
+    assert header is not None and {k: v for k, v in header.items() if k != "state_dict"} == {k: v for k, v in ckpt.items() if k != "state_dict"}
+    assert header["state_dict"].keys() == ckpt["state_dict"].keys() and all(v is None for v in header["state_dict"].values())
+    assert recorded_frontier(tmp_path / "cso.pt") == trained_frontier(ckpt, GraphConfig(**ckpt["graph"])) == FrontierConfig(entropy_window_m=4.0)
+    assert recorded_frontier(weights_path("cso")) == FrontierConfig(min_cluster_size_m=0.3, entropy_window_m=2.0)  # before the record: its graph's
+
+    class Loud:
+        def __reduce__(self):
+            return (print, ("ran",))
+
+    with zipfile.ZipFile(tmp_path / "loud.pt", "w") as archive:
+        archive.writestr("loud/data.pkl", pickle.dumps({"graph": {"entropy_window_m": 4.0}, "frontier": Loud()}))
+    assert checkpoint_header(tmp_path / "loud.pt") is None and recorded_frontier(tmp_path / "loud.pt") is None
+    assert checkpoint_header(tmp_path / "cso.json") is None and checkpoint_header(tmp_path / "none.pt") is None
