@@ -13,6 +13,7 @@ Arguments after ``--`` go to ``cso-runtime eval`` (keep ``--workers 1``: the ens
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -21,16 +22,18 @@ import torch
 
 from cso_runtime.config import FrontierConfig
 from cso_runtime.learned import registry
-from cso_runtime.learned.graph import build_graph
+from cso_runtime.learned.graph import GraphConfig, build_graph
 from cso_runtime.learned.network import GraphActorCritic, to_torch
 from cso_runtime.observation import Observation
 
 
 class EnsemblePolicy(registry.LearnedPolicy):
-    """``LearnedPolicy`` whose probabilities are the mean of several networks' masked probabilities."""
+    """``LearnedPolicy`` whose probabilities are the mean of several networks' masked probabilities, over the graph
+    ``graph`` (the members' own; None: ``base``'s); ``base`` gives the name, masks and device."""
 
-    def __init__(self, members: list[GraphActorCritic], base: registry.LearnedPolicy, seed: int | None):
-        super().__init__(base.name, base.model, base.graph_config, base.masker.config, seed=seed, device=base.device)
+    def __init__(self, members: list[GraphActorCritic], base: registry.LearnedPolicy, seed: int | None, graph: GraphConfig | None = None):
+        # members[0] as its model: what warm_up traces reads the members' graph (the served weights' may read another)
+        super().__init__(base.name, members[0], graph or base.graph_config, base.masker.config, seed=seed, device=base.device)
         self.members = members
 
     @torch.inference_mode()
@@ -58,6 +61,9 @@ def main(argv: list[str] | None = None) -> int:
         # loaded by their paths, are held to the run's frontier settings as the weights served are.
         base = make(name, mask_config, seed=seed, device=device, sensor=sensor, frontier=frontier)
         use_entropy = registry.VARIANTS[name].use_entropy
+        others = [f"{path} holds weights trained as {ckpt['variant']!r}" for path, (_, _, ckpt) in zip(args.member, loaded, strict=True) if ckpt.get("variant") not in (None, name)]
+        if others:  # as a method's own weights file of another variant is refused (registry._model_for)
+            raise registry.CheckpointError(f"{'; '.join(others)}, not {name!r}: an ensemble of --method {name} takes members trained as {name}")
         refused = [
             mismatch.said(name, Path(path))
             for path, (_, graph, ckpt) in zip(args.member, loaded, strict=True)
@@ -66,7 +72,10 @@ def main(argv: list[str] | None = None) -> int:
         ]
         if refused:
             raise registry.CheckpointError("; ".join(refused))
-        return EnsemblePolicy(members, base, seed)
+        # The members' graph (their knn, distance scale, node limits...), not the weights served's, which only stand in
+        # for the policy's name and masks: the variant's entropy switch on it, as make_learned_policy sets it.
+        graph = dataclasses.replace(loaded[0][1], use_entropy=base.graph_config.use_entropy)
+        return EnsemblePolicy(members, base, seed, graph)
 
     registry.make_learned_policy = make_ensemble
     from cso_runtime.cli import app  # noqa: PLC0415

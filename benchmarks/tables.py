@@ -14,6 +14,9 @@ baseline on the scenes both ran (``cso_runtime.comparison``: mean per-scene rati
 interval, and the scenes won). ``--table2`` prints the same pooled episodes as the paper's Table 2 instead:
 one row per method, one column per scale, each cell the mean m2/step and the per-scene change against the
 baseline.
+
+Exit codes, ``compare``'s: 0, the table printed; 1, the files hold no episode; 2, refused before reading a table (no
+such file, files of both kinds, a file that does not read as eval's, a ``--baseline`` of no episode in them).
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ from cso_runtime.comparison import (
     format_interval,
     labelled,
     mixed_setups_said,
+    no_baseline_said,
+    no_episode_said,
     scene_key,
     whole_rows,
 )
@@ -92,9 +97,8 @@ def pooled_rows(files: list[tuple[str, Path]]) -> list[dict[str, Any]]:
     return list(pooled.values())
 
 
-def no_episode(files: list[tuple[str, Path]]) -> str:
-    """What is said of files that hold no episode, in ``compare``'s words."""
-    return f"these files hold no episode: {', '.join(str(path) for _, path in files)}"
+class NoEpisode(ValueError):
+    """Files that hold no episode (``comparison.no_episode_said``): exit 1, as ``compare`` (they read, and hold nothing to table)."""
 
 
 class Pooled(NamedTuple):
@@ -108,13 +112,17 @@ class Pooled(NamedTuple):
 
 
 def pool(files: list[tuple[str, Path]], baseline: str) -> Pooled:
-    """The episodes of ``files`` pooled (``pooled_rows``); files of no episode (a header alone) are a ValueError, as
-    ``compare`` refuses them: a table of headers alone looks like a table of nothing to compare."""
+    """The episodes of ``files`` pooled (``pooled_rows``); files of no episode (a header alone) are a ``NoEpisode``, as
+    ``compare`` refuses them: a table of headers alone looks like a table of nothing to compare. A ``baseline`` of no
+    episode there is a ValueError naming their methods, as ``compare`` says it: a typo in ``--baseline`` left every
+    row's paired column empty, a table that looked like one of no scene in common."""
     episodes = pooled_rows(files)
     if not episodes:
-        raise ValueError(no_episode(files))
+        raise NoEpisode(no_episode_said(files))
     known = [baseline, *BASELINES, *LEARNED_METHODS]
     methods = sorted(dict.fromkeys(r["method"] for r in episodes), key=lambda m: known.index(m) if m in known else len(known))
+    if baseline not in methods:
+        raise ValueError(no_baseline_said(baseline, methods))
     summary = summarize(episodes, [], methods, meta={}, baseline="")
     by_scale = {(m, s): e for m in methods for s, e in summary["methods"][m]["by_scale"].items()}
     paired = {(c.method, c.scale): c for c in compare_to_baseline(efficiency_by_scene(episodes), baseline)}
@@ -158,6 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     try:  # an episodes.csv cut short: one line naming it (pooled_rows), not a traceback
         if csvs:
             lines = table2_from_episodes(csvs, args.baseline) if args.table2 else table_from_episodes(csvs, args.baseline)
+    except NoEpisode as exc:
+        parser.exit(1, f"{parser.prog}: error: {exc}\n")
     except ValueError as exc:
         parser.error(str(exc))
     if csvs:
@@ -178,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             parser.error(f"{p}: not a summary.json eval wrote ({type(exc).__name__}: {exc})")
     if not lines:  # summaries of no episode ({"methods": {}}): not a table of headers alone and exit 0
-        parser.error(no_episode(files))
+        parser.exit(1, f"{parser.prog}: error: {no_episode_said(files)}\n")
     print(HEADER)
     print("| --- " * 9 + "|")
     for line in lines:

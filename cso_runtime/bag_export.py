@@ -186,9 +186,11 @@ class StepTimeline:
     after the first reception time; a step's other messages at the time of its first scan or odometry. A new episode
     (its clock and steps start again) follows the last time of the one before by one ``step_s``. Its start is told by
     the episode id its scans and odometry carry (``messages.new_episode_id``: an episode of one step is as new as any);
-    a message of the episode just left, late, keeps that episode's times. Messages of no id (0: a recording before the
-    ids, a publisher without them) tell it by their step numbers going back (by more than the one step a message can
-    lag), which misses an episode after one of fewer than three steps."""
+    a message of an episode left, late, keeps that episode's times (however many episodes of a step or two came
+    between), and one of an episode whose first scan or odometry is still to come (another key, handled first) takes
+    the latest time, not a step of the episode before. Messages of no id (0: a recording before the ids, a publisher
+    without them) tell it by their step numbers going back (by more than the one step a message can lag), which misses
+    an episode after one of fewer than three steps."""
 
     def __init__(self, start_ns: int, step_s: float = 0.25) -> None:
         self.start_ns, self.step_s = start_ns, step_s
@@ -199,38 +201,48 @@ class StepTimeline:
         self.by_step: dict[int, float] = {}
         self.episode = 0
         """The current episode's id (0: none known)."""
-        self.previous: tuple[int, float, dict[int, float]] | None = None
-        """The episode left last: its id, offset and times by step, for its late messages."""
+        self.left: dict[int, tuple[float, dict[int, float]]] = {}
+        """The episodes left, by id: their offsets and times by step, for their late messages."""
+
+    def ns(self, t_s: float) -> int:
+        """The bag time of ``t_s`` on this timeline."""
+        return self.start_ns + ros2_cdr.stamp_ns_from_seconds(t_s)
 
     def stamp(self, step: int, stamp_s: float, episode: int = 0) -> int:
         """The bag time (ns) of a step of ``episode`` (its id; 0: none) whose scan or odometry carries ``stamp_s``."""
         if self.first_stamp_s is None:
             self.first_stamp_s = stamp_s
-        if episode and self.previous is not None and episode == self.previous[0]:  # late, of the episode left last
-            _, offset_s, by_step = self.previous
+        if episode and episode != self.episode and episode in self.left:  # late, of an episode left
+            offset_s, by_step = self.left[episode]
             t = stamp_s - self.first_stamp_s + offset_s
             by_step.setdefault(step, t)
-            return self.start_ns + ros2_cdr.stamp_ns_from_seconds(t)
+            return self.ns(t)
         new = episode != self.episode if episode and self.episode else step < self.max_step - 1
         if new:  # a new episode: its clock and steps start again
-            self.previous = (self.episode, self.offset_s, self.by_step) if self.episode else None
+            if self.episode:
+                self.left[self.episode] = (self.offset_s, self.by_step)
             self.offset_s = self.last_s + self.step_s - (stamp_s - self.first_stamp_s)
             self.by_step = {}
             self.max_step = -1
-        if episode:
+        if new or episode:  # an episode told by its steps alone has no id; one with an id has it from its first message
             self.episode = episode
         t = stamp_s - self.first_stamp_s + self.offset_s  # its own: a real-time sim's scan fired before its step's odometry
         self.by_step.setdefault(step, t)
         self.max_step = max(self.max_step, step)
         self.last_s = max(self.last_s, t)
-        return self.start_ns + ros2_cdr.stamp_ns_from_seconds(t)
+        return self.ns(t)
 
     def at(self, step: int, episode: int = 0) -> int:
         """The bag time of a message that carries only its step (a map, a goal...) and perhaps its episode id: its
-        step's (in the episode left last, for a late one of it), else the latest."""
-        if episode and self.previous is not None and episode == self.previous[0] and step in self.previous[2]:
-            return self.start_ns + ros2_cdr.stamp_ns_from_seconds(self.previous[2][step])
-        return self.start_ns + ros2_cdr.stamp_ns_from_seconds(self.by_step.get(step, self.last_s))
+        step's in its episode (an episode left, for a late one: its step's, else its last), else the latest (also for
+        an episode the timeline has not begun: its first scan or odometry is yet to come)."""
+        if episode and episode != self.episode:
+            if episode in self.left:
+                by_step = self.left[episode][1]
+                return self.ns(by_step.get(step, max(by_step.values(), default=self.last_s)))
+            if self.episode:  # not the current one, nor one left: one to come (with no id known now, any of them)
+                return self.ns(self.last_s)
+        return self.ns(self.by_step.get(step, self.last_s))
 
 
 def every_topic(ros_topic: str) -> bool:

@@ -428,6 +428,8 @@ def compare_command(
         labelled,
         markdown_table,
         mixed_setups_said,
+        no_baseline_said,
+        no_episode_said,
         pooled_episodes,
         split_names,
         write_csv,
@@ -452,9 +454,9 @@ def compare_command(
     if baseline not in {method for method, _ in table}:  # none of its episodes left: why (of every method's none too)
         counts = episodes_by_method(files, rename or [])
         if not counts:
-            _fail(f"these files hold no episode: {', '.join(str(path) for _, path in files)}", 1)
+            _fail(no_episode_said(files), 1)
         if baseline not in counts:  # a typo in --baseline, not "too few scenes"
-            _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(sorted(counts))}", 2)
+            _fail(no_baseline_said(baseline, counts), 2)
         # It has episodes, none comparable: said so, not "no episodes" (exit 1, as too few scenes)
         left = episodes_by_method(files, rename or [], exclude or []).get(baseline, 0)
         why = (f"its {counts[baseline]} in these files are all on maps --exclude leaves out" if not left

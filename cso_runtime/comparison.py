@@ -394,6 +394,17 @@ def pooled_episodes(files: Sequence[tuple[str, Path]], exclude: Iterable[str], r
     return table, replaced
 
 
+def no_episode_said(files: Sequence[tuple[str, Path]]) -> str:
+    """What ``compare`` (and ``benchmarks/tables.py``) say of ``files`` that hold no episode (exit 1)."""
+    return f"these files hold no episode: {', '.join(str(path) for _, path in files)}"
+
+
+def no_baseline_said(baseline: str, methods: Iterable[str]) -> str:
+    """What ``compare`` (and ``benchmarks/tables.py``) say of a ``--baseline`` none of whose episodes are in the files,
+    which hold ``methods``' (exit 2: a typo, most likely)."""
+    return f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(sorted(methods))}"
+
+
 def episodes_by_method(files: Sequence[tuple[str, Path]], renames: Iterable[str], exclude: Iterable[str] = ()) -> dict[str, int]:
     """How many episodes (rows) each method has in ``files`` (as ``pooled_episodes`` read them, the ``--rename``
     arguments applied), whatever their efficiency, without those on the maps of ``exclude``: what ``compare`` says of

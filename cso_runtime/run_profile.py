@@ -384,7 +384,7 @@ class Profile:
             if problem := weights_file_problem(method, sensor):
                 raise ConfigError(f"method {method}: {problem}")
             # Inputs of another scale than the weights learned on (the entropy window): the policy service refuses them at its
-            # start (weights.input_mismatches, as registry loads them); their record says so without torch, before anything starts.
+            # start (weights.input_mismatches, as registry loads them); the checkpoint's own record says so without torch, before anything starts.
             if refused := recorded_input_refusals(method, self.exploration_config().frontier, sensor):
                 raise ConfigError(f"method {method}: {'; '.join(refused)}")
             device = policy.get("device", "cpu")

@@ -52,10 +52,10 @@ def through_wall_problem(sim: MujocoSimConfig, robot: RobotConfig) -> str | None
     if sim.contact_time_constant_s * v <= most_m * (1 + _WHOLE_STEPS_REL_TOL):
         return None
     side = "robot.width_m" if robot.width_m <= robot.length_m else "robot.length_m"
-    softest_s = most_m / v
+    softest_s = float(f"{most_m / v:.6g}")  # as said, so that the value said is the value taken (within the tolerance)
     finer = ""
-    if sim.timestep_s > softest_s / 2 * (1 + _WHOLE_STEPS_REL_TOL):  # the contact must stay two physics steps or more
-        step = _coarsest_whole_timestep(sim, robot, softest_s / 2)
+    if 2 * sim.timestep_s > softest_s + 1e-12:  # the contact must stay two physics steps or more (``validate``'s rule)
+        step = _coarsest_whole_timestep(sim, robot, softest_s)
         whole = "the contact at least two physics steps; whole steps of robot.control_period_s and of odometry_rate_hz's period"
         finer = f" with timestep_s {step:.6g} s or finer ({whole})" if step else " with a finer timestep_s"
     return (
@@ -67,13 +67,17 @@ def through_wall_problem(sim: MujocoSimConfig, robot: RobotConfig) -> str | None
     )
 
 
-def _coarsest_whole_timestep(sim: MujocoSimConfig, robot: RobotConfig, most_s: float) -> float | None:
-    """The coarsest physics step of at most ``most_s`` that keeps the control period and the odometry period whole
-    steps (``whole_steps``); None where none is at least ``MIN_TIMESTEP_S``."""
-    first = math.ceil(robot.control_period_s / most_s * (1 - _WHOLE_STEPS_REL_TOL))
-    for n in range(max(1, first), int(robot.control_period_s / MIN_TIMESTEP_S) + 1):
-        timestep_s = robot.control_period_s / n
-        if _steps_if_whole(1.0 / (sim.odometry_rate_hz * timestep_s)) is not None:
+def _coarsest_whole_timestep(sim: MujocoSimConfig, robot: RobotConfig, contact_s: float) -> float | None:
+    """The coarsest physics step, as said (6 significant digits), that a contact of ``contact_s`` spans twice (as
+    ``MujocoSimConfig.validate`` checks it) and that keeps the control period and the odometry period whole steps
+    (``whole_steps``); None where none is at least ``MIN_TIMESTEP_S``. The value said, not the quotient it rounds: a step
+    a hair above half the contact, or one that rounds up, is refused by the very check the message names."""
+    first = max(1, math.floor(2 * robot.control_period_s / contact_s))
+    for n in range(first, int(robot.control_period_s / MIN_TIMESTEP_S) + 1):
+        timestep_s = float(f"{robot.control_period_s / n:.6g}")
+        if 2 * timestep_s > contact_s + 1e-12:
+            continue
+        if _steps_if_whole(robot.control_period_s / timestep_s) is not None and _steps_if_whole(1.0 / (sim.odometry_rate_hz * timestep_s)) is not None:
             return timestep_s
     return None
 

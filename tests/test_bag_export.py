@@ -671,3 +671,32 @@ def test_an_episode_after_one_of_one_or_two_steps_follows_it_by_its_episode_id(t
     # No ids (a recording before them): step numbers going back tell a new episode, as before.
     legacy_timeline = StepTimeline(T0_NS)
     assert [legacy_timeline.stamp(k, 0.25 * k) for k in (0, 1, 2, 0)] == [T0_NS + k * 250_000_000 for k in range(4)]
+
+
+def test_a_late_message_of_any_episode_left_keeps_its_times_and_one_of_an_episode_to_come_is_not_laid_back():
+    """The timeline kept the times of the episode left last alone: a message of the one before it, late after an episode
+    of one step (episodes 1, 2 of one step, 3: odometry of 1 after 3's first scan), was taken for a new episode, and
+    3's next step for another, both laid after everything before (3's steps shifted by a step). A map of an episode
+    whose first scan is still to come (another key, handled first) took the time of the same step in the episode before,
+    back at its start."""
+    from cso_runtime.bag_export import StepTimeline
+
+    timeline = StepTimeline(T0_NS)
+
+    def stamp(step: int, episode: int) -> float:
+        return (timeline.stamp(step, 0.25 * step, episode) - T0_NS) / 1e9
+
+    assert [stamp(0, 1), stamp(1, 1), stamp(2, 1), stamp(0, 2), stamp(0, 3)] == [0.0, 0.25, 0.5, 0.75, 1.0]
+    assert stamp(2, 1) == 0.5 and timeline.at(2, 1) == T0_NS + 500_000_000  # late, of episode 1: its own times
+    assert stamp(1, 3) == 1.25 and stamp(0, 2) == 0.75  # episode 3 goes on where it was; 2 keeps its time
+    assert timeline.at(5, 1) == T0_NS + 500_000_000  # a late one of a step episode 1 has no time for: its last
+    assert timeline.at(0, 4) == T0_NS + 1_250_000_000  # episode 4's map before its scan: the latest, not 3's (or 1's) step 0
+    assert stamp(0, 4) == 1.5 and timeline.at(0, 4) == T0_NS + 1_500_000_000
+    # Without ids (a recording before them) a message's step is looked up in the current episode, as before.
+    legacy = StepTimeline(T0_NS)
+    assert [legacy.stamp(k, 0.25 * k) for k in (0, 1, 2, 0)] == [T0_NS + k * 250_000_000 for k in range(4)]
+    assert legacy.at(0) == T0_NS + 750_000_000 and legacy.at(1) == T0_NS + 750_000_000 and legacy.at(1, 9) == T0_NS + 750_000_000
+    # An episode of ids, then one of none told by its steps: a late map of the first keeps its time.
+    mixed = StepTimeline(T0_NS)
+    assert [mixed.stamp(k, 0.25 * k, 5) for k in (0, 1, 2)] + [mixed.stamp(k, 0.25 * k) for k in (0, 1)] == [T0_NS + k * 250_000_000 for k in range(5)]
+    assert mixed.at(1, 5) == T0_NS + 250_000_000 and mixed.at(1) == T0_NS + 1_000_000_000

@@ -660,16 +660,20 @@ def test_up_warns_when_the_policys_weights_were_trained_under_other_stuck_mask_s
 def test_up_refuses_weights_trained_with_another_entropy_window_before_it_starts_anything(tmp_path: Path, monkeypatch):
     """``up --weights RUN`` of a run trained with a 4 m entropy window, under the profile's 2 m (or the shipped weights,
     2 m, under ``--set exploration.frontier.entropy_window_m=4``), passed up's checks and started every service: the
-    policy service then refused the weights at its start. The record beside the weights (``<stem>.json``'s
-    ``args.entropy_window_m``; a record before that field: the 2 m train ran with) says the window without torch, and
-    up refuses before it starts anything, with the policy service's own words (``registry.input_mismatches``): the
-    variants that read no entropy, another ``min_cluster_size_m`` (warned at the load) and weights of no record pass."""
-    import json
+    policy service then refused the weights at its start. The checkpoint's own record (its ``frontier``, read without
+    torch: ``weights.checkpoint_header``; one from before that record: its graph's window) says the window, and up
+    refuses before it starts anything, with the policy service's own words (``weights.input_mismatches``): the
+    variants that read no entropy, another ``min_cluster_size_m`` (warned at the load) and weights that do not read
+    so pass."""
+    import dataclasses
     import shutil
     import subprocess
     import sys
 
+    import torch
+
     from cso_runtime.config import SensorConfig
+    from cso_runtime.learned.ppo import Args, build_model, save_weights
     from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path
     from cso_runtime.run_profile import load_profile
     from tests.conftest import unset_weights_env
@@ -678,30 +682,37 @@ def test_up_refuses_weights_trained_with_another_entropy_window_before_it_starts
     shipped = weights_path("cso", SensorConfig.preset("lidar", 180))
     wider = {"exploration.frontier.entropy_window_m": 4.0}
     said = re.escape(f"method cso: the weights of cso ({shipped}) were trained with frontier.entropy_window_m 2 m, this run's is 4 m: ")
-    with pytest.raises(ConfigError, match=said + r".*up: --set exploration.frontier.entropy_window_m=2\).*" + re.escape(f"(as its record {shipped.with_suffix('.json')} says)")):
+    with pytest.raises(ConfigError, match=said + r".*up: --set exploration.frontier.entropy_window_m=2\)"):
         load_profile("sim", {"method": "cso"}, settings=wider)
     load_profile("sim", {"method": "cso-no-info"}, settings=wider)  # reads no entropy
     load_profile("sim", {"method": "cso"}, settings={"exploration.frontier.min_cluster_size_m": 0.5})  # warned, not refused
 
     run = tmp_path / "run"
-    run.mkdir()
-    shutil.copy(weights_path("cso"), run / "cso.pt")
-    (run / "cso.json").write_text(json.dumps({"variant": "cso", "args": {"variant": "cso", "sensor": "lidar", "lidar_fov_deg": 180.0, "entropy_window_m": 4.0}}))
+    wide = Args(variant="cso", entropy_window_m=4.0, cluster_size_feature=True, out_dir=str(run))
+    save_weights(run, build_model(wide, torch.device("cpu")), wide, {"ppo_decisions": 0, "args": dataclasses.asdict(wide)})  # its record as train's
     monkeypatch.setenv(WEIGHTS_DIR_ENV, str(run))
     load_profile("sim", {"method": "cso"}, settings=wider)
     with pytest.raises(ConfigError, match=r"method cso: the weights of cso \(.*cso\.pt\) were trained with frontier.entropy_window_m 4 m, this run's is 2 m"):
         load_profile("sim", {"method": "cso"})
-    (run / "cso.json").unlink()  # no record: the policy service's load is the check
+    (run / "cso.pt").write_bytes(b"\x80" + (run / "cso.pt").read_bytes()[1:])  # does not read without torch: the policy service's load says
     load_profile("sim", {"method": "cso"})
     unset_weights_env(monkeypatch)
 
-    (run / "cso.json").write_text(json.dumps({"variant": "cso", "args": {"variant": "cso", "sensor": "lidar", "lidar_fov_deg": 180.0, "entropy_window_m": 4.0}}))
+    save_weights(run, build_model(wide, torch.device("cpu")), wide, {"ppo_decisions": 0, "args": dataclasses.asdict(wide)})
     up = [sys.executable, "-m", "cso_runtime.cli", "up", "--profile", "sim", "--weights", str(run), "--method", "cso", "--dry-run"]
     refused = subprocess.run(up, capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert refused.returncode == 2 and "trained with frontier.entropy_window_m 4 m, this run's is 2 m" in refused.stderr, refused.stderr
     assert refused.stdout == "", refused.stdout
     taken = subprocess.run([*up, "--set", "exploration.frontier.entropy_window_m=4"], capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert taken.returncode == 0, taken.stderr
+
+    # A record beside the weights that tells of other weights (the shipped file copied over the run's, its 4 m record
+    # left beside it) is not what up goes by: the weights' own window is (2 m), as the policy service's load reads it.
+    shutil.copy(weights_path("cso"), run / "cso.pt")
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(run))
+    load_profile("sim", {"method": "cso"})
+    with pytest.raises(ConfigError, match=r"trained with frontier.entropy_window_m 2 m, this run's is 4 m"):
+        load_profile("sim", {"method": "cso"}, settings=wider)
 
 
 def test_up_of_a_learned_method_the_weights_folder_lacks_names_those_it_holds(tmp_path: Path, monkeypatch):

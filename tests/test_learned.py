@@ -3160,3 +3160,85 @@ def test_ensemble_of_benchmarks_runs_its_episodes_and_checks_each_members_window
     assert summary["methods"]["cso"]["episodes"] == 1, summary.get("failures")
     failed = json.loads((tmp_path / "wide" / "summary.json").read_text())
     assert "trained with frontier.entropy_window_m 4 m, this run's is 2 m" in json.dumps(failed)
+
+
+def test_ensemble_of_benchmarks_decides_over_its_members_graph_not_the_served_weights(tmp_path, monkeypatch):
+    """benchmarks/eval_ensemble.py built each decision's graph with the graph of the weights it serves (the shipped
+    ``cso.pt``: knn 8, distance scale 10 m), not its members': members trained with ``knn=4`` and ``distance_scale_m=5``
+    were given graphs of 8 neighbours and distances at half their scale, without a word (the node features' count is
+    the same). The members must share one graph; the ensemble decides over it."""
+    from cso_runtime import cli
+    from cso_runtime.learned import registry
+    from cso_runtime.learned.ppo import save_weights
+
+    unset_weights_env(monkeypatch)
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    monkeypatch.setattr(registry, "make_learned_policy", registry.make_learned_policy)  # main() replaces it: given back after
+    spec = importlib.util.spec_from_file_location("eval_ensemble", Path(__file__).parents[1] / "benchmarks" / "eval_ensemble.py")
+    ensemble = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ensemble)
+    other = Args(variant="cso", knn=4, distance_scale_m=5.0, cluster_size_feature=True, out_dir=str(tmp_path / "other"))
+    save_weights(tmp_path / "other", build_model(other, torch.device("cpu")), other, {"ppo_decisions": 0})
+    seen: list[GraphConfig] = []
+    decide = ensemble.EnsemblePolicy.probabilities
+    monkeypatch.setattr(ensemble.EnsemblePolicy, "probabilities", lambda self, obs, mask: (seen.append(self.graph_config), decide(self, obs, mask))[1])
+    with pytest.raises(SystemExit):
+        ensemble.main(["--member", str(tmp_path / "other" / "cso.pt"), "--", "--method", "cso", "--lidar-fov", "360", "--workers", "1",
+                       "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / "out")])
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["methods"]["cso"]["episodes"] == 1, summary.get("failures")
+    assert seen and {(g.knn, g.distance_scale_m, g.use_entropy) for g in seen} == {(4, 5.0, True)}, seen[:1]
+
+
+def test_ensemble_of_benchmarks_refuses_members_of_another_variant(tmp_path, monkeypatch):
+    """A member trained as ``cso-no-info`` (its entropy input 0 throughout training) in an ensemble run as
+    ``--method cso`` was fed the entropy input it never saw, where the method's own weights file of another variant is
+    refused (``registry._model_for``). It is refused so, naming the member."""
+    from cso_runtime import cli
+    from cso_runtime.learned import registry
+    from cso_runtime.learned.ppo import save_weights
+
+    unset_weights_env(monkeypatch)
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    monkeypatch.setattr(registry, "make_learned_policy", registry.make_learned_policy)  # main() replaces it: given back after
+    spec = importlib.util.spec_from_file_location("eval_ensemble", Path(__file__).parents[1] / "benchmarks" / "eval_ensemble.py")
+    ensemble = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ensemble)
+    blind = Args(variant="cso-no-info", cluster_size_feature=True, out_dir=str(tmp_path / "blind"))
+    save_weights(tmp_path / "blind", build_model(blind, torch.device("cpu")), blind, {"ppo_decisions": 0})
+    with pytest.raises(SystemExit):
+        ensemble.main(["--member", str(tmp_path / "blind" / "cso-no-info.pt"), "--", "--method", "cso", "--lidar-fov", "360", "--workers", "1",
+                       "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / "out")])
+    failed = json.dumps(json.loads((tmp_path / "out" / "summary.json").read_text()))
+    assert "cso-no-info.pt holds weights trained as 'cso-no-info'" in failed, failed[:2000]
+
+
+def test_a_checkpoints_header_reads_without_torch_as_torch_loads_it_and_runs_none_of_its_code(tmp_path):
+    """``weights.checkpoint_header`` (``up``'s window check before anything starts) reads what ``torch.load`` gives of a
+    checkpoint's plain data, and the frontier settings every load compares (``registry.trained_frontier``); a pickle
+    that would call anything but torch's tensor rebuilding is not read (None), nor is a file of another kind."""
+    import pickle
+    import zipfile
+
+    from cso_runtime.config import FrontierConfig
+    from cso_runtime.learned.ppo import save_weights
+    from cso_runtime.learned.registry import trained_frontier
+    from cso_runtime.learned.weights import checkpoint_header, recorded_frontier
+
+    wide = Args(variant="cso", entropy_window_m=4.0, out_dir=str(tmp_path))
+    save_weights(tmp_path, build_model(wide, torch.device("cpu")), wide, {"ppo_decisions": 0})
+    ckpt = torch.load(tmp_path / "cso.pt", map_location="cpu", weights_only=True)
+    header = checkpoint_header(tmp_path / "cso.pt")
+    assert header is not None and {k: v for k, v in header.items() if k != "state_dict"} == {k: v for k, v in ckpt.items() if k != "state_dict"}
+    assert header["state_dict"].keys() == ckpt["state_dict"].keys() and all(v is None for v in header["state_dict"].values())
+    assert recorded_frontier(tmp_path / "cso.pt") == trained_frontier(ckpt, GraphConfig(**ckpt["graph"])) == FrontierConfig(entropy_window_m=4.0)
+    assert recorded_frontier(weights_path("cso")) == FrontierConfig(min_cluster_size_m=0.3, entropy_window_m=2.0)  # before the record: its graph's
+
+    class Loud:
+        def __reduce__(self):
+            return (print, ("ran",))
+
+    with zipfile.ZipFile(tmp_path / "loud.pt", "w") as archive:
+        archive.writestr("loud/data.pkl", pickle.dumps({"graph": {"entropy_window_m": 4.0}, "frontier": Loud()}))
+    assert checkpoint_header(tmp_path / "loud.pt") is None and recorded_frontier(tmp_path / "loud.pt") is None
+    assert checkpoint_header(tmp_path / "cso.json") is None and checkpoint_header(tmp_path / "none.pt") is None

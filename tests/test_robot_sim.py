@@ -794,3 +794,31 @@ def test_settings_whose_walls_cannot_stop_the_robot_at_top_speed_are_refused_wit
     mujoco_config({}, SensorConfig(), robot=RobotConfig())
     mujoco_config(coarse, SensorConfig(), robot=RobotConfig())
     mujoco_config({}, SensorConfig(), robot=fast)
+
+
+@pytest.mark.parametrize(
+    ("robot", "sim"),
+    [
+        # 0.25 s / 6 = 0.0416667 s: twice that, 0.0833334 s, is above the contact said (0.0833333 s), and was refused
+        (RobotConfig(max_linear_mps=1.32), {"timestep_s": 0.05, "contact_time_constant_s": 0.1, "actuator_time_constant_s": 0.1, "odometry_rate_hz": 4.0}),
+        (RobotConfig(max_linear_mps=5.0), {"timestep_s": 0.05, "contact_time_constant_s": 0.1, "actuator_time_constant_s": 0.1, "odometry_rate_hz": 20.0}),
+        (RobotConfig(max_linear_mps=2.47, length_m=0.052, width_m=0.119, control_period_s=0.3),
+         {"timestep_s": 0.3 / 19, "contact_time_constant_s": 0.683, "actuator_time_constant_s": 0.1, "odometry_rate_hz": 1 / (0.3 / 19 * 3)}),
+        (RobotConfig(max_linear_mps=3.0), {"contact_time_constant_s": 0.2}),
+    ],
+)
+def test_each_way_out_a_through_wall_refusal_names_is_taken_as_written(robot: RobotConfig, sim: dict[str, float]) -> None:
+    """The speed, and the contact (with the physics step, where the step is too coarse for it), that the refusal of
+    walls too soft for the robot's top speed names, written back as the message writes them, are each taken by every
+    check of the MuJoCo LIMO's settings (``mujoco_config``: ``validate``'s two physics steps a contact, whole steps of the
+    control and odometry periods, the walls). The step was the quotient of the control period rounded for the message:
+    a step a hair above half the contact said (or rounded up to it) was refused by ``validate`` in turn."""
+    from cso_runtime.simulator import mujoco_config
+
+    with pytest.raises(ConfigError) as refused:
+        mujoco_config(sim, SensorConfig(), robot=robot)
+    said = re.search(r"Use robot.max_linear_mps (\S+) m/s or less, or contact_time_constant_s (\S+) s or less(?: with timestep_s (\S+) s or finer)?", str(refused.value))
+    assert said is not None, refused.value
+    speed, contact, step = said.groups()
+    mujoco_config(sim, SensorConfig(), robot=dataclasses.replace(robot, max_linear_mps=float(speed)))
+    mujoco_config({**sim, "contact_time_constant_s": float(contact), **({"timestep_s": float(step)} if step else {})}, SensorConfig(), robot=robot)

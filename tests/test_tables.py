@@ -186,8 +186,9 @@ def test_a_summary_json_that_does_not_read_is_one_line_naming_it_not_a_traceback
 
 def test_files_of_no_episode_are_one_line_saying_so_not_a_table_of_headers_alone(tmp_path, capsys):
     """An episodes.csv of its header alone (an eval stopped before its first episode) printed Table 1's header and
-    exited 0, as did a summary.json of no method: a table of nothing, taken for a run that compared nothing. Now a usage
-    error (exit 2) in compare's words, as a summary.json that does not read is."""
+    exited 0, as did a summary.json of no method: a table of nothing, taken for a run that compared nothing. Now one
+    line in compare's words, with compare's exit code for it (1: the files read and hold nothing; it was 2 here, a
+    usage error, where compare says 1)."""
     empty = write(tmp_path / "empty.csv", [])
     assert empty.read_text().strip() == ",".join(CSV_FIELDS)
     none = tmp_path / "summary.json"
@@ -197,7 +198,7 @@ def test_files_of_no_episode_are_one_line_saying_so_not_a_table_of_headers_alone
         with pytest.raises(SystemExit) as ended:
             tables.main(args)
         said = capsys.readouterr()
-        assert ended.value.code == 2 and said.out == "", (args, said)
+        assert ended.value.code == 1 and said.out == "", (args, said)
         assert f"error: these files hold no episode: {args[-1].partition('=')[2] or args[-1]}" in said.err, (args, said.err)
     # One file of no episode beside one with episodes pools the other's, as compare does.
     full = write(tmp_path / "full.csv", [episode("greedy-dist", "a", "large", 1.0)])
@@ -232,3 +233,23 @@ def _rows(path: Path) -> list[dict]:
 
     with path.open(newline="") as fh:
         return list(csv.DictReader(fh))
+
+
+def test_a_baseline_of_no_episode_is_refused_as_compare_refuses_it(tmp_path, capsys):
+    """``--baseline greedy-dsit`` (a typo) printed Table 1 with every row's paired column empty and exited 0, a table
+    that read as one of methods sharing no scene with the baseline; compare refuses it (exit 2, naming the methods the
+    files hold). Now tables.py does too, in either layout."""
+    import subprocess
+    import sys
+
+    full = write(tmp_path / "full.csv", [episode(m, s, "large", 1.0) for m in ("greedy-dist", "cso") for s in "abc"])
+    tables = load_tables()
+    for extra in ([], ["--table2"]):
+        with pytest.raises(SystemExit) as ended:
+            tables.main([*extra, "--baseline", "greedy-dsit", str(full)])
+        said = capsys.readouterr()
+        assert ended.value.code == 2 and said.out == "", said
+        assert "error: --baseline 'greedy-dsit' has no episodes in these files; their methods: cso, greedy-dist" in said.err, said.err
+    compare = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "compare", str(full), "--baseline", "greedy-dsit"], capture_output=True, text=True, timeout=60)
+    assert compare.returncode == 2 and "--baseline 'greedy-dsit' has no episodes in these files; their methods: cso, greedy-dist" in compare.stderr, compare.stderr
+    assert tables.main([str(full)]) == 0

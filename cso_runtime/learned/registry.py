@@ -26,6 +26,7 @@ from cso_runtime.learned.weights import (  # noqa: F401 - WEIGHTS_DIR_ENV, INPUT
     TRAINED_FRONTIER_BEFORE_RECORD,
     WEIGHTS_DIR_ENV,
     InputMismatch,
+    checkpoint_frontier,
     has_weights,
     input_mismatches,
     weights_file_refusal,
@@ -107,15 +108,8 @@ def save_checkpoint(
 
 
 def trained_frontier(ckpt: dict[str, Any], graph: GraphConfig) -> FrontierConfig:
-    """The frontier settings the weights of ``ckpt`` (with its ``graph``) were trained with: its ``frontier`` record,
-    or, in a checkpoint written before the record, ``TRAINED_FRONTIER_BEFORE_RECORD`` with the entropy window of its
-    graph. A key the record lacks (a later setting) takes the value of before the record."""
-    before = dataclasses.replace(TRAINED_FRONTIER_BEFORE_RECORD, entropy_window_m=float(graph.entropy_window_m))
-    record = ckpt.get("frontier")
-    if not isinstance(record, dict):
-        return before
-    known = {f.name for f in dataclasses.fields(FrontierConfig)}
-    return dataclasses.replace(before, **{k: float(v) for k, v in record.items() if k in known and isinstance(v, (int, float))})
+    """The frontier settings the weights of ``ckpt`` (with its ``graph``) were trained with (``weights.checkpoint_frontier``)."""
+    return checkpoint_frontier(ckpt, graph.entropy_window_m)
 
 
 class CheckpointError(ValueError):

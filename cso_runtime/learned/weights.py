@@ -14,9 +14,14 @@ exactly that file, whatever the sensor; nothing beside it takes its place.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+import io
 import json
 import os
+import pickle
+import zipfile
+from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -318,7 +323,7 @@ episodes' window, 2 m in each shipped file): ``trained_frontier`` reads it from 
 
 INPUT_CHECKS: dict[str, bool] = {"entropy_window_m": True, "min_cluster_size_m": False}
 """The run settings (of ``frontier``) that change what the network is given, compared at every load with those the
-weights were trained with (``registry.trained_frontier``; before anything starts, ``recorded_frontier``); True: a mismatch
+weights were trained with (``checkpoint_frontier``: at every load, and before anything starts in ``up``); True: a mismatch
 is refused (``registry.CheckpointError``; ``up``: a ConfigError), False: warned.
 
 - ``entropy_window_m`` (gamma of Eq. 4), refused: the frontier service counts I over the run's window and the graph
@@ -379,29 +384,85 @@ def input_mismatches(trained: FrontierConfig, run: FrontierConfig, use_entropy: 
     return found
 
 
-def recorded_frontier(path: Path) -> FrontierConfig | None:
-    """The frontier settings the weights at ``path`` were trained with, as the record ``train`` writes beside them says
-    (``<stem>.json``'s ``args.entropy_window_m``; a record from before that field: ``TRAINED_FRONTIER_BEFORE_RECORD``,
-    as ``train`` ran then), without torch; None where no readable record says. The load reads the checkpoint's own
-    (``registry.trained_frontier``), which this stands for before anything starts (``recorded_input_refusals``)."""
-    args = training_args(path)
-    if args is None:
+def checkpoint_frontier(ckpt: Mapping[str, Any], graph_window_m: float) -> FrontierConfig:
+    """The frontier settings the weights of ``ckpt`` (a checkpoint ``registry.save_checkpoint`` wrote, whose graph
+    divides I by ``graph_window_m``) were trained with: its ``frontier`` record, or, in a checkpoint written before the
+    record, ``TRAINED_FRONTIER_BEFORE_RECORD`` with the entropy window of its graph. A key the record lacks (a later
+    setting) takes the value of before the record. Every load (``registry.trained_frontier``) and ``up``'s check before
+    anything starts (``recorded_frontier``) read it so."""
+    before = dataclasses.replace(TRAINED_FRONTIER_BEFORE_RECORD, entropy_window_m=float(graph_window_m))
+    record = ckpt.get("frontier")
+    if not isinstance(record, dict):
+        return before
+    known = {f.name for f in dataclasses.fields(FrontierConfig)}
+    return dataclasses.replace(before, **{k: float(v) for k, v in record.items() if k in known and isinstance(v, (int, float)) and not isinstance(v, bool)})
+
+
+CHECKPOINT_HEADER_MAX_BYTES = 16 * 1024 * 1024
+"""The largest pickle of a checkpoint's plain data (``data.pkl``: its tensors are kept apart) that ``checkpoint_header``
+reads: a cso-runtime checkpoint's is a few kB."""
+
+
+def _no_tensor(*_args: Any, **_kwargs: Any) -> None:
+    """What a tensor (and its storage) of a checkpoint stands as when ``checkpoint_header`` reads it: nothing."""
+
+
+class _HeaderUnpickler(pickle.Unpickler):
+    """``torch.save``'s ``data.pkl`` read without torch: tensors and their storages (persistent ids, torch's rebuild
+    functions) stand as None, and no other class than an ``OrderedDict`` is built, so that reading a file runs none of
+    its code (``torch.load(weights_only=True)`` allows no more)."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) == ("collections", "OrderedDict"):
+            return collections.OrderedDict
+        if (module == "torch._utils" and name.startswith("_rebuild_")) or (module == "torch" and name.endswith("Storage")):
+            return _no_tensor
+        raise pickle.UnpicklingError(f"{module}.{name}: not read without torch")
+
+    def persistent_load(self, pid: Any) -> None:
         return None
-    window = args.get("entropy_window_m", TRAINED_FRONTIER_BEFORE_RECORD.entropy_window_m)
+
+
+def checkpoint_header(path: Path) -> dict[str, Any] | None:
+    """The plain data of the checkpoint at ``path`` (``registry.save_checkpoint``'s ``variant``, ``network``, ``graph``,
+    ``frontier``, ``extra``; its ``state_dict``'s tensors as None), read from ``torch.save``'s zip archive without
+    torch; None for a file that is not one (missing, another program's, torch's legacy pickle: the load says more)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            pickles = [info for info in archive.infolist() if info.filename.endswith("/data.pkl") and info.filename.count("/") == 1]
+            if len(pickles) != 1 or pickles[0].file_size > CHECKPOINT_HEADER_MAX_BYTES:
+                return None
+            data = archive.read(pickles[0])
+        header = _HeaderUnpickler(io.BytesIO(data)).load()
+    except Exception:  # noqa: BLE001 - a zip or a pickle of anything else: not said here, the load says what it is
+        return None
+    return header if isinstance(header, dict) else None
+
+
+def recorded_frontier(path: Path) -> FrontierConfig | None:
+    """The frontier settings the weights at ``path`` were trained with, as the checkpoint itself records them
+    (``checkpoint_frontier`` of its ``checkpoint_header``), without torch: the very record every load compares
+    (``registry.trained_frontier``), not the ``.json`` beside it, which a file copied over the weights leaves telling of
+    other weights. None where the file does not read so (the load says why)."""
+    header = checkpoint_header(path)
+    graph = header.get("graph") if header is not None else None
+    if header is None or not isinstance(graph, dict):
+        return None
+    window = graph.get("entropy_window_m", TRAINED_FRONTIER_BEFORE_RECORD.entropy_window_m)  # GraphConfig's default, the same 2 m
     if isinstance(window, bool) or not isinstance(window, (int, float)) or not 0 < window < float("inf"):
-        return None  # not a window train wrote: the load reads the checkpoint's
-    return dataclasses.replace(TRAINED_FRONTIER_BEFORE_RECORD, entropy_window_m=float(window))
+        return None  # not a graph save_checkpoint wrote: the load says what it is
+    return checkpoint_frontier(header, float(window))
 
 
 def recorded_input_refusals(name: str, frontier: FrontierConfig, sensor: SensorConfig | None = None) -> list[str]:
     """The ``input_mismatches`` that loading ``name``'s weights (for ``sensor``) with the run's ``frontier`` settings
-    would refuse, one line each, as the weights' record says (``recorded_frontier``): what ``up`` refuses before it starts
-    anything, where the policy service would refuse them at its start. [] where they match or no record says."""
+    would refuse, one line each, as the checkpoint records them (``recorded_frontier``), in the policy service's words:
+    what ``up`` refuses before it starts anything, where the policy service would refuse them at its start. [] where
+    they match or the file does not read without torch (the policy service's load then says it)."""
     from cso_runtime.policies import VARIANTS  # noqa: PLC0415 - no torch; policies imports this module
 
     path = weights_path(name, sensor)
     trained = recorded_frontier(path)
     if trained is None or name not in VARIANTS:
         return []
-    record = path.with_suffix(".json")
-    return [f"{m.said(name, path)} (as its record {record} says)" for m in input_mismatches(trained, frontier, VARIANTS[name].use_entropy) if m.refused]
+    return [m.said(name, path) for m in input_mismatches(trained, frontier, VARIANTS[name].use_entropy) if m.refused]
