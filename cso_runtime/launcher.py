@@ -112,6 +112,8 @@ from cso_runtime.transport import (
     TransportConfig,
     TransportError,
     any_loopback_port,
+    callback_name,
+    guarded_callback,
     listen_in_use_hint,
     open_router,
     open_session,
@@ -566,19 +568,16 @@ class Launcher:
     # --- zenoh side -------------------------------------------------------------------------------
     def _guarded(self, callback: Callable[[Any], None]) -> Callable[[Any], None]:
         """``callback`` for Zenoh: an exception in it would only reach Zenoh's own stderr print, unseen in
-        the launcher's log and status; here it is logged with its traceback and counted."""
-        name = callback.__name__.lstrip("_")
+        the launcher's log and status; here it is logged with its traceback and counted, and a query it was answering
+        gets an error reply at once (``transport.guarded_callback``, as the services' ``Service.guarded``)."""
+        return guarded_callback(callback, self._handler_failed, callback_name(callback).lstrip("_"))
 
-        def call(arg: Any) -> None:
-            try:
-                callback(arg)
-            except Exception:
-                with self._lock:
-                    n = self.handler_errors[name] = self.handler_errors.get(name, 0) + 1
-                if n <= 5:
-                    log.exception("launcher: %s raised (%d so far); the run goes on", name, n)
-
-        return call
+    def _handler_failed(self, name: str) -> None:
+        """Count (``handler_errors``) and log, the first few with their traceback, an exception raised in ``name``."""
+        with self._lock:
+            n = self.handler_errors[name] = self.handler_errors.get(name, 0) + 1
+        if n <= 5:
+            log.exception("launcher: %s raised (%d so far); the run goes on", name, n)
 
     def _on_sample(self, sample: Any) -> None:
         key = str(sample.key_expr)

@@ -8,6 +8,7 @@ cross-talk by accident.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import json
 import logging
 import os
@@ -15,6 +16,7 @@ import re
 import socket
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -370,3 +372,41 @@ def track_robots_liveliness(alive: set[tuple[str, str]], sample: Any) -> None:
         alive.add(pair)
     else:
         alive.discard(pair)
+
+
+def callback_name(callback: Callable[..., Any]) -> str:
+    """How a callback is named in logs and counts: its function's name (a ``functools.partial``'s function's)."""
+    return str(getattr(callback, "__name__", None) or getattr(getattr(callback, "func", None), "__name__", "a callback"))
+
+
+def guarded_callback(callback: Callable[..., None], failed: Callable[[str], None], name: str | None = None) -> Callable[..., None]:
+    """``callback`` for Zenoh (a queryable, a subscriber, a liveliness subscriber) or another library's thread, for
+    whatever arguments it is called with: an exception in it reached only that library's own log line, in no count.
+    Here ``failed(name)`` is called in the ``except`` block (it counts, and logs with ``log.exception``); a ``zenoh.Query``
+    among the arguments is answered with an error naming the callback and what it raised, and ended at once: left to
+    be ended when the ``Query`` was freed, a log handler that kept the record (and so the traceback, and the query)
+    made its querier wait out its whole timeout. The one guard of the services (``Service.guarded``) and the
+    launcher's (``Launcher._guarded``)."""
+    said = callback_name(callback) if name is None else name
+
+    def call(*args: Any) -> None:
+        try:
+            callback(*args)
+        except Exception as exc:  # noqa: BLE001 - counted and logged by ``failed``, then answered
+            failed(said)  # first: a querier told of the error then finds it counted in the status it asks for next
+            for arg in args:
+                if isinstance(arg, zenoh.Query):
+                    end_failed_query(arg, f"{said} raised {type(exc).__name__}: {exc}")
+
+    return call
+
+
+def end_failed_query(query: zenoh.Query, why: str) -> None:
+    """Reply ``why`` as an error to ``query`` (clipped, escaped: ``messages.clipped``) and end it now; a query that can
+    no longer take a reply (already ended) is left as it is."""
+    from cso_runtime.messages import clipped  # noqa: PLC0415 - the message module only where a callback failed
+
+    with contextlib.suppress(Exception):  # zenoh.ZError, or whatever a query already dropped raises
+        query.reply_err(clipped(why))
+    with contextlib.suppress(Exception):
+        query.drop()

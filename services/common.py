@@ -80,7 +80,7 @@ from cso_runtime.processes import (
     signal_on_parent_death,
 )
 from cso_runtime.run_profile import Profile, profile_exploration_config, unknown_top_level_keys
-from cso_runtime.transport import STOPPED, TransportConfig, TransportError, open_session
+from cso_runtime.transport import STOPPED, TransportConfig, TransportError, guarded_callback, open_session
 
 log = logging.getLogger("cso.service")
 
@@ -408,16 +408,9 @@ class Service:
         or for another library's thread (the Foxglove server's listener): an exception in it reached only that library's
         own log line, in no count, and a status queryable that raised left the service unanswering, killed and restarted
         by its launcher as hung. Here it is logged with its traceback (the first few) and counted (``callback_errors``,
-        in the status's counters); the service goes on."""
-        name = str(getattr(callback, "__name__", None) or getattr(getattr(callback, "func", None), "__name__", "a callback"))
-
-        def call(*args: Any) -> None:
-            try:
-                callback(*args)
-            except Exception:  # noqa: BLE001 - logged with its traceback and counted
-                self.callback_failed(name)
-
-        return call
+        in the status's counters), a query it was answering gets an error reply at once (``transport.guarded_callback``);
+        the service goes on."""
+        return guarded_callback(callback, self.callback_failed)
 
     def callback_failed(self, name: str) -> None:
         """Count (and log with its traceback, the first few and every hundredth) an exception raised in ``name``."""

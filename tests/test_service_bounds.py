@@ -561,3 +561,33 @@ def test_a_full_inbox_drops_its_oldest_data_never_a_pause_waiting_among_them(mon
         inputs.on_sample(_KeySample(keys.explore_resume, encode(ExploreResumeMsg(i % 2 == 1, f"op{i}"))))
     left = [decode(item[1], ExploreResumeMsg).by for _ in range(limit) if (item := inputs.next_queued(0.0)) is not None]
     assert left == [f"op{i}" for i in range(limit, 2 * limit)] and inputs.queue.nbytes == 0
+
+
+def test_a_guarded_queryable_that_raises_answers_its_querier_at_once_with_an_error_naming_it(caplog):
+    """A guarded queryable (``Service.guarded``) that raised left its query to be finalized whenever the ``Query``
+    object was freed: a log handler that keeps the record (pytest's own, a memory handler) keeps its traceback, and
+    with it the query, so the querier waited out its whole timeout for nothing. It replies with an error that names
+    the callback and ends the query at once."""
+    from services.common import Service, ServiceContext
+
+    svc = Service(ServiceContext("probe", "t1", {}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {}))
+
+    def episode_status_query(query: Any) -> None:
+        raise RuntimeError("a bug in the reply")
+
+    port = free_tcp_port()
+    with (
+        caplog.at_level("ERROR", logger="cso.service"),
+        open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as router,
+        open_session(TransportConfig(mode="client", connect=[loopback_endpoint(port)])) as session,
+        session.declare_queryable("t1/probe/q", svc.guarded(episode_status_query)),
+        router.declare_querier("t1/probe/q", timeout=10.0) as querier,
+    ):
+        wait_for(lambda: querier.matching_status.matching, HANG_DEADLINE_S, "the queryable at the router")
+        started_s = time.monotonic()
+        replies = list(querier.get())
+        took_s = time.monotonic() - started_s
+    assert svc.callback_errors == 1 and "episode_status_query raised" in caplog.text
+    assert [r.ok for r in replies] == [None] and replies[0].err is not None, replies
+    assert replies[0].err.payload.to_string() == "episode_status_query raised RuntimeError: a bug in the reply"
+    assert took_s < 5.0, f"the querier waited {took_s:.1f} s for a query that had failed"
