@@ -662,7 +662,7 @@ def test_up_refuses_weights_trained_with_another_entropy_window_before_it_starts
     2 m, under ``--set exploration.frontier.entropy_window_m=4``), passed up's checks and started every service: the
     policy service then refused the weights at its start. The checkpoint's own record (its ``frontier``, read without
     torch: ``weights.checkpoint_header``; one from before that record: its graph's window) says the window, and up
-    refuses before it starts anything, with the policy service's own words (``weights.input_mismatches``): the
+    refuses before it starts anything, with the policy service's own words (``weights.input_verdict``): the
     variants that read no entropy, another ``min_cluster_size_m`` (warned at the load) and weights that do not read
     so pass."""
     import dataclasses
