@@ -339,8 +339,8 @@ class Profile:
             from cso_runtime.simulator import MountSetting, mujoco_config  # noqa: PLC0415
 
             exploration = self.exploration_config()
-            mount = MountSetting(key="exploration.sensor.mount_x_m", file="the profile", command="up")  # a profile's key, not eval's
-            mujoco_config(sim.get("mujoco"), exploration.sensor, where="services.sim.mujoco", robot=exploration.robot, mount=mount)
+            mount = MountSetting(key="exploration.sensor.mount_x_m", file="the profile", command="up", robot_key="exploration.robot")  # a profile's keys, not eval's
+            mujoco_config(sim.get("mujoco"), exploration.sensor, where="services.sim.mujoco", robot=exploration.robot, mount=mount, exploration=exploration)
         if (self.services.get("sim") or {}).get("viewer"):  # its own process checks too; this says so before anything starts
             from robot_sim.viewer import display_problem  # noqa: PLC0415
 
