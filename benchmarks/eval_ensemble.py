@@ -24,6 +24,7 @@ from cso_runtime.config import FrontierConfig
 from cso_runtime.learned import registry
 from cso_runtime.learned.graph import GraphConfig, build_graph
 from cso_runtime.learned.network import GraphActorCritic, to_torch
+from cso_runtime.learned.weights import InputVerdict
 from cso_runtime.observation import Observation
 
 
@@ -54,33 +55,47 @@ def main(argv: list[str] | None = None) -> int:
     members = [model for model, _, _ in loaded]
     if len({str(graph) for _, graph, _ in loaded}) != 1:
         raise SystemExit("the members must share one graph configuration")
-    make = registry.make_learned_policy
+    make, check = registry.make_learned_policy, registry.check_weights
 
-    def make_ensemble(name, mask_config, seed=None, device="cpu", sensor=None, frontier=None):
-        # As make_learned_policy is called (make_policy passes the run's sensor and frontier settings); the members,
-        # loaded by their paths, are held to the run's frontier settings as the weights served are.
-        base = make(name, mask_config, seed=seed, device=device, sensor=sensor, frontier=frontier)
-        use_entropy = registry.VARIANTS[name].use_entropy
+    def check_members(name: str, frontier: FrontierConfig | None) -> list[str]:
+        """The members, loaded by their paths, held to method ``name`` and the run's frontier settings as the weights of
+        a method are (``registry._model_for``): CheckpointError for a member of another variant, or for what
+        ``registry.input_verdict`` refuses; its warnings (each member's, one line each) returned for the caller to say."""
         others = [f"{path} holds weights trained as {ckpt['variant']!r}" for path, (_, _, ckpt) in zip(args.member, loaded, strict=True) if ckpt.get("variant") not in (None, name)]
         if others:  # as a method's own weights file of another variant is refused (registry._model_for)
             raise registry.CheckpointError(f"{'; '.join(others)}, not {name!r}: an ensemble of --method {name} takes members trained as {name}")
-        refused = [
-            mismatch.said(name, Path(path))
-            for path, (_, graph, ckpt) in zip(args.member, loaded, strict=True)
-            for mismatch in registry.input_mismatches(registry.trained_frontier(ckpt, graph), frontier or FrontierConfig(), use_entropy)
-            if mismatch.refused
-        ]
-        if refused:
-            raise registry.CheckpointError("; ".join(refused))
+        verdict = sum(
+            (registry.input_verdict(name, Path(path), registry.trained_frontier(ckpt, graph), frontier, graph.use_entropy) for path, (_, graph, ckpt) in zip(args.member, loaded, strict=True)),
+            InputVerdict(),
+        )
+        if verdict.refused:
+            raise registry.CheckpointError(verdict.refusal)
+        return list(verdict.warned)
+
+    def check_ensemble(name, device="cpu", sensor=None, frontier=None):
+        # As check_weights is called (eval's request, before any episode; its plan says the warnings once): the weights
+        # served, which give the policy its name and masks, then the members, which decide, and whose warnings are said.
+        check(name, device=device, sensor=sensor, frontier=frontier)
+        return check_members(name, frontier)
+
+    def make_ensemble(name, mask_config, seed=None, device="cpu", sensor=None, frontier=None):
+        # As make_learned_policy is called (make_policy passes the run's sensor and frontier settings).
+        base = make(name, mask_config, seed=seed, device=device, sensor=sensor, frontier=frontier)
+        warned = check_members(name, frontier)
         # The members' graph (their knn, distance scale, node limits...), not the weights served's, which only stand in
         # for the policy's name and masks: the variant's entropy switch on it, as make_learned_policy sets it.
         graph = dataclasses.replace(loaded[0][1], use_entropy=base.graph_config.use_entropy)
-        return EnsemblePolicy(members, base, seed, graph)
+        policy = EnsemblePolicy(members, base, seed, graph)
+        policy.input_warnings = warned  # the members', which decide (the policy service says them, as make_learned_policy's)
+        return policy
 
-    registry.make_learned_policy = make_ensemble
-    from cso_runtime.cli import app  # noqa: PLC0415
+    registry.make_learned_policy, registry.check_weights = make_ensemble, check_ensemble
+    try:
+        from cso_runtime.cli import app  # noqa: PLC0415
 
-    app(["eval", *eval_args])
+        app(["eval", *eval_args])
+    finally:  # the process's own loaders again (main() called in a process that goes on: the tests)
+        registry.make_learned_policy, registry.check_weights = make, check
     return 0
 
 

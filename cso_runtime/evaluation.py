@@ -277,7 +277,7 @@ class EvalRequest:
         data = load_yaml(self.sim_config_path) if self.sim_config_path is not None else {}
         cfg = self.exploration_config()
         mount = MountSetting(file=str(self.config_path or "a --config file"), command="eval")  # eval's config sets the sensor
-        mujoco_config(data, cfg.sensor, where=str(self.sim_config_path or "--sim mujoco"), robot=cfg.robot, mount=mount)
+        mujoco_config(data, cfg.sensor, where=str(self.sim_config_path or "--sim mujoco"), robot=cfg.robot, mount=mount, exploration=cfg)
         return data
 
     def as_record(self) -> dict[str, Any]:

@@ -274,7 +274,7 @@ def make_policy(
     """Build a goal selector by name (``greedy-dist``, ``greedy-info``, ``utility``, ``random``, ``cso``...), or a
     method of the user's own (``module.path:Attribute`` or a registered name: ``own_selector``). A learned method loads the weights trained with ``sensor``'s field of view where they ship,
     and refuses (ValueError) a ``frontier`` setting that would feed its network inputs of another scale than it was trained on
-    (``registry.input_mismatches``; None: ``FrontierConfig``'s defaults, what ``ObservationBuilder()`` builds with)."""
+    (``registry.input_verdict``; None: ``FrontierConfig``'s defaults, what ``ObservationBuilder()`` builds with)."""
     if name in BASELINES or own_method_spec(name):
         policy = BASELINES[name]() if name in BASELINES else own_selector(name)
         policy.reset(seed)

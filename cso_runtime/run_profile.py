@@ -339,8 +339,8 @@ class Profile:
             from cso_runtime.simulator import MountSetting, mujoco_config  # noqa: PLC0415
 
             exploration = self.exploration_config()
-            mount = MountSetting(key="exploration.sensor.mount_x_m", file="the profile", command="up")  # a profile's key, not eval's
-            mujoco_config(sim.get("mujoco"), exploration.sensor, where="services.sim.mujoco", robot=exploration.robot, mount=mount)
+            mount = MountSetting(key="exploration.sensor.mount_x_m", file="the profile", command="up", robot_key="exploration.robot")  # a profile's keys, not eval's
+            mujoco_config(sim.get("mujoco"), exploration.sensor, where="services.sim.mujoco", robot=exploration.robot, mount=mount, exploration=exploration)
         if (self.services.get("sim") or {}).get("viewer"):  # its own process checks too; this says so before anything starts
             from robot_sim.viewer import display_problem  # noqa: PLC0415
 
@@ -369,7 +369,7 @@ class Profile:
                 raise ConfigError(f"services.policy.method: {exc}") from None
         if method in LEARNED_METHODS and not own_policy:
             from cso_runtime.learned.weights import (  # noqa: PLC0415
-                recorded_input_refusals,
+                recorded_input_refusal,
                 weights_file_problem,
                 weights_file_refusal,
                 weights_path,
@@ -384,9 +384,9 @@ class Profile:
             if problem := weights_file_problem(method, sensor):
                 raise ConfigError(f"method {method}: {problem}")
             # Inputs of another scale than the weights learned on (the entropy window): the policy service refuses them at its
-            # start (weights.input_mismatches, as registry loads them); the checkpoint's own record says so without torch, before anything starts.
-            if refused := recorded_input_refusals(method, self.exploration_config().frontier, sensor):
-                raise ConfigError(f"method {method}: {'; '.join(refused)}")
+            # start (weights.input_verdict, as registry loads them); the checkpoint's own record says so without torch, before anything starts.
+            if refusal := recorded_input_refusal(method, self.exploration_config().frontier, sensor):
+                raise ConfigError(f"method {method}: {refusal}")
             device = policy.get("device", "cpu")
             if device != "cpu":  # torch only for a GPU policy
                 from cso_runtime.learned.registry import device_problem  # noqa: PLC0415

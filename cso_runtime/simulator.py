@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from cso_runtime.config import ConfigError, RobotConfig, SensorConfig, from_dict
+from cso_runtime.config import ConfigError, ExplorationConfig, RobotConfig, SensorConfig, from_dict
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, returns_as_float32, wrap_angle_rad
 from cso_runtime.raycast import cast_rays, ray_codes
 from cso_runtime.scenes import FloorPlan
@@ -235,13 +235,16 @@ SIMULATORS = ("2d", "mujoco")
 @dataclass(frozen=True)
 class MountSetting:
     """Where the user of a command sets the sensor's mount, for the error that asks for it: a profile's key is
-    ``exploration.sensor.mount_x_m``, eval's config's ``sensor.mount_x_m``."""
+    ``exploration.sensor.mount_x_m``, eval's config's ``sensor.mount_x_m``; and the robot's keys, which the checks of
+    the physics against the robot name (a profile's ``exploration.robot.max_linear_mps``, eval's ``robot.max_linear_mps``)."""
 
     key: str = "sensor.mount_x_m"
     """The dotted key of the sensor's mount in ``file``."""
     file: str = "the exploration config"
     command: str = ""
     """The command whose ``--set`` sets ``key`` too (``up``, ``eval``); empty: none."""
+    robot_key: str = "robot"
+    """The dotted key of the robot's section (``RobotConfig``) in ``file``."""
 
     def advice(self, value: object) -> str:
         flag = f" or with {self.command} --set {self.key}={value}" if self.command else ""
@@ -254,14 +257,16 @@ def mujoco_config(
     where: str = "mujoco",
     robot: RobotConfig | None = None,
     mount: MountSetting | None = MountSetting(),
+    exploration: ExplorationConfig | None = None,
 ) -> MujocoSimConfig:
     """The MuJoCo LIMO's parameters: ``robot_sim``'s defaults with ``overrides`` on top (the keys of
     ``configs/robot_sim.yaml``: physics, odometry drift), its rays cast from the sensor's own mount, which the
     mapper and the planner use too (eval, the services and doctor give it the LIMO's 0.103 m unless a config
     sets it): one mount, not two that disagree. With ``robot``, its control period must be a whole number of
-    physics steps, and walls must stop it at its top speed (``check_walls_hold``). Raises ConfigError naming ``where``
-    and, for another mount, how the caller's user sets the sensor's (``mount``; None: the caller fixes it, the key can
-    only be left out)."""
+    physics steps, and walls must stop it at its top speed (``check_walls_hold``: a slower top speed is suggested only
+    where ``exploration``, the whole config ``robot`` is of, takes it). Raises ConfigError naming ``where``, the robot's
+    keys where the caller's user sets them (``mount.robot_key``) and, for another mount, how the caller's user sets the
+    sensor's (``mount``; None: the caller fixes it, the key can only be left out)."""
     from robot_sim.config import MujocoSimConfig, check_walls_hold, lidar_mount_problem, whole_steps  # noqa: PLC0415 - MuJoCo only when asked for
 
     data = dict(overrides or {})
@@ -272,8 +277,9 @@ def mujoco_config(
     config = from_dict(MujocoSimConfig, data, where=where)
     if robot is not None:
         try:
-            whole_steps(robot.control_period_s, config.timestep_s, "robot.control_period_s")
-            check_walls_hold(config, robot)  # not the body through walls too soft for its top speed, or between two physics steps
+            robot_key = mount.robot_key if mount is not None else MountSetting.robot_key
+            whole_steps(robot.control_period_s, config.timestep_s, f"{robot_key}.control_period_s")
+            check_walls_hold(config, robot, robot_key, exploration)  # not the body through walls too soft for its top speed, or between two physics steps
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
     return config

@@ -7,6 +7,7 @@ physics adds: time step, acceleration limits, watchdog, odometry drift, the LIMO
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -42,29 +43,51 @@ def whole_steps(duration_s: float, timestep_s: float, what: str) -> int:
     return n
 
 
-def through_wall_problem(sim: MujocoSimConfig, robot: RobotConfig) -> str | None:
+def through_wall_problem(sim: MujocoSimConfig, robot: RobotConfig, robot_key: str = "robot", exploration: ExplorationConfig | None = None) -> str | None:
     """Why walls may not stop ``robot`` at its top speed under ``sim`` (``MAX_SINK_OF_SIDE``: it travels too far within
     the contact's time constant, and so within a physics step), with values that work, or None. Checked where the
-    MuJoCo LIMO's parameters meet the robot's (``simulator.mujoco_config``, ``MujocoSimulator``), before anything starts."""
+    MuJoCo LIMO's parameters meet the robot's (``simulator.mujoco_config``, ``MujocoSimulator``), before anything starts.
+    The robot's keys are named under ``robot_key``, where the caller's user sets them (``simulator.MountSetting``: a
+    profile's ``exploration.robot``); a top speed is suggested only where the whole exploration config ``robot`` is of
+    takes it (``exploration``; None: ``ExplorationConfig``'s other sections), not one below the planner's
+    ``backup_speed_mps``, which it refuses."""
     side_m = min(robot.length_m, robot.width_m)
     most_m = MAX_SINK_OF_SIDE * side_m
     v = robot.max_linear_mps
     if sim.contact_time_constant_s * v <= most_m * (1 + _WHOLE_STEPS_REL_TOL):
         return None
-    side = "robot.width_m" if robot.width_m <= robot.length_m else "robot.length_m"
+    side = f"{robot_key}.width_m" if robot.width_m <= robot.length_m else f"{robot_key}.length_m"
     softest_s = float(f"{most_m / v:.6g}")  # as said, so that the value said is the value taken (within the tolerance)
     finer = ""
     if 2 * sim.timestep_s > softest_s + 1e-12:  # the contact must stay two physics steps or more (``validate``'s rule)
         step = _coarsest_whole_timestep(sim, robot, softest_s)
-        whole = "the contact at least two physics steps; whole steps of robot.control_period_s and of odometry_rate_hz's period"
+        whole = f"the contact at least two physics steps; whole steps of {robot_key}.control_period_s and of odometry_rate_hz's period"
         finer = f" with timestep_s {step:.6g} s or finer ({whole})" if step else " with a finer timestep_s"
+    slowest = float(f"{most_m / sim.contact_time_constant_s:.6g}")  # as said, as softest_s
+    contact = f"contact_time_constant_s {softest_s:.6g} s or less{finer}"
+    if _top_speed_taken(robot, slowest, exploration):
+        use = f"Use {robot_key}.max_linear_mps {slowest:.6g} m/s or less, or {contact}"
+    else:  # a top speed slow enough for these walls is one the rest of the config refuses (the planner's back-up speed)
+        use = f"Use {contact} ({robot_key}.max_linear_mps {slowest:.6g} m/s, slow enough for walls this soft, is too slow for the exploration config)"
     return (
-        f"contact_time_constant_s ({sim.contact_time_constant_s:g} s) x robot.max_linear_mps ({v:g} m/s) is "
+        f"contact_time_constant_s ({sim.contact_time_constant_s:g} s) x {robot_key}.max_linear_mps ({v:g} m/s) is "
         f"{sim.contact_time_constant_s * v:.3g} m, more than half the robot's smaller side ({side} {side_m:g} m: {most_m:.3g} m; "
         f"timestep_s ({sim.timestep_s:g} s) x it: {sim.timestep_s * v:.3g} m a physics step): at top speed the body sinks into "
-        f"walls that soft and can pass through them. Use robot.max_linear_mps {most_m / sim.contact_time_constant_s:.6g} m/s "
-        f"or less, or contact_time_constant_s {softest_s:.6g} s or less{finer}"
+        f"walls that soft and can pass through them. {use}"
     )
+
+
+def _top_speed_taken(robot: RobotConfig, speed_mps: float, exploration: ExplorationConfig | None) -> bool:
+    """Whether ``robot`` with top speed ``speed_mps`` passes the checks of the robot and of the whole exploration config
+    (``exploration``, None: ``ExplorationConfig``'s other sections): the planner's back-up speed and progress need a
+    speed at least theirs."""
+    slower = dataclasses.replace(robot, max_linear_mps=speed_mps)
+    try:
+        slower.validate()
+        dataclasses.replace(exploration or ExplorationConfig(), robot=slower).validate()
+    except ConfigError:
+        return False
+    return True
 
 
 def _coarsest_whole_timestep(sim: MujocoSimConfig, robot: RobotConfig, contact_s: float) -> float | None:
@@ -82,9 +105,9 @@ def _coarsest_whole_timestep(sim: MujocoSimConfig, robot: RobotConfig, contact_s
     return None
 
 
-def check_walls_hold(sim: MujocoSimConfig, robot: RobotConfig) -> None:
+def check_walls_hold(sim: MujocoSimConfig, robot: RobotConfig, robot_key: str = "robot", exploration: ExplorationConfig | None = None) -> None:
     """``through_wall_problem`` as a ConfigError."""
-    if (problem := through_wall_problem(sim, robot)) is not None:
+    if (problem := through_wall_problem(sim, robot, robot_key, exploration)) is not None:
         raise ConfigError(problem)
 
 

@@ -570,11 +570,74 @@ def test_the_mujoco_limo_control_period_must_be_whole_physics_steps_before_anyth
     EvalRequest(methods=["greedy-dist"], sim="2d", settings={"robot.control_period_s": 0.251}).validate()  # no physics step
     mujoco_4ms = {"services.sim.mujoco.timestep_s": 0.004, "services.sim.mujoco.odometry_rate_hz": 50.0}  # odometry: 5 steps
     for settings in ({"exploration.robot.control_period_s": 0.251}, mujoco_4ms):
-        with pytest.raises(ConfigError, match="services.sim.mujoco: robot.control_period_s .* whole number of physics steps"):
+        with pytest.raises(ConfigError, match="services.sim.mujoco: exploration.robot.control_period_s .* whole number of physics steps"):  # a profile's key
             load_profile("sim", {}, settings=settings)
     load_profile("lockstep", {}, settings={"exploration.robot.control_period_s": 0.251})  # the kinematic sim takes it
     with pytest.raises(ConfigError, match=r"odometry_rate_hz \(40 Hz\) must be a whole number of physics steps"):
         load_profile("sim", {}, settings={"services.sim.mujoco.timestep_s": 0.004})
+
+
+THROUGH_WALL_WAYS_OUT = re.compile(
+    r"Use (?:(?P<robot>\S+)\.max_linear_mps (?P<speed>\S+) m/s or less, or )?contact_time_constant_s (?P<contact>\S+) s or less(?: with timestep_s (?P<step>\S+) s or finer)?"
+)
+
+
+@pytest.mark.parametrize(
+    ("settings", "speed_said"),
+    [
+        ({"services.sim.mujoco.contact_time_constant_s": 0.2, "exploration.robot.max_linear_mps": 2.0}, True),  # 0.55 m/s
+        ({"services.sim.mujoco.contact_time_constant_s": 0.8}, False),  # 0.1375 m/s: below planner.backup_speed_mps, 0.15
+        ({"services.sim.mujoco.contact_time_constant_s": 0.25, "exploration.planner.backup_speed_mps": 0.5}, False),  # 0.44 m/s
+        ({"services.sim.mujoco.timestep_s": 0.05, "services.sim.mujoco.contact_time_constant_s": 0.1, "services.sim.mujoco.actuator_time_constant_s": 0.1,
+          "services.sim.mujoco.odometry_rate_hz": 20.0, "exploration.robot.max_linear_mps": 5.0}, True),  # a finer step too
+    ],
+)
+def test_each_way_out_of_up_s_through_wall_refusal_is_taken_by_the_whole_profile(settings: dict, speed_said: bool):
+    """``up``'s refusal of walls too soft for the robot's top speed named ``robot.max_linear_mps``, eval's key, where a
+    profile's is ``exploration.robot.max_linear_mps``; and with a contact above about 0.73 s it suggested a top speed below
+    the planner's ``backup_speed_mps`` (0.15 m/s), which the exploration config then refused. Each way out it names, set as
+    printed, is taken by the whole profile (exploration and sim); a top speed is named only where the config takes it."""
+    from cso_runtime.run_profile import load_profile
+
+    with pytest.raises(ConfigError) as refused:
+        load_profile("sim", {}, settings=settings)
+    said = str(refused.value)
+    assert "services.sim.mujoco: contact_time_constant_s" in said and " robot." not in said and "(robot." not in said, said
+    way = THROUGH_WALL_WAYS_OUT.search(said)
+    assert way is not None, said
+    assert (way["speed"] is not None) == speed_said, said
+    contact = {"services.sim.mujoco.contact_time_constant_s": float(way["contact"])}
+    load_profile("sim", {}, settings={**settings, **contact, **({"services.sim.mujoco.timestep_s": float(way["step"])} if way["step"] else {})})
+    if speed_said:
+        assert way["robot"] == "exploration.robot", said
+        load_profile("sim", {}, settings={**settings, "exploration.robot.max_linear_mps": float(way["speed"])})
+    else:  # the speed the walls would need is one the profile refuses: not a way out
+        slow = float(re.search(r"max_linear_mps (\S+) m/s, slow enough", said)[1])
+        with pytest.raises(ConfigError, match="backup_speed_mps"):
+            load_profile("sim", {}, settings={**settings, "exploration.robot.max_linear_mps": slow})
+
+
+def test_each_way_out_of_eval_s_through_wall_refusal_is_taken_by_eval_s_whole_config(tmp_path: Path):
+    """As ``up``'s (above), with eval's keys: ``--sim-config`` holds the physics, ``--set robot.max_linear_mps`` the robot."""
+    import yaml
+
+    from cso_runtime.evaluation import EvalRequest
+
+    sim_config = tmp_path / "soft.yaml"
+    sim_config.write_text(yaml.safe_dump({"contact_time_constant_s": 0.8}))
+    with pytest.raises(ConfigError) as refused:
+        EvalRequest(methods=["greedy-dist"], sim="mujoco", sim_config_path=sim_config).validate()
+    said = str(refused.value)
+    way = THROUGH_WALL_WAYS_OUT.search(said)
+    assert way is not None and way["speed"] is None, said  # 0.1375 m/s: below planner.backup_speed_mps
+    sim_config.write_text(yaml.safe_dump({"contact_time_constant_s": float(way["contact"])}))
+    EvalRequest(methods=["greedy-dist"], sim="mujoco", sim_config_path=sim_config).validate()
+    sim_config.write_text(yaml.safe_dump({"contact_time_constant_s": 0.2}))
+    with pytest.raises(ConfigError) as refused:
+        EvalRequest(methods=["greedy-dist"], sim="mujoco", sim_config_path=sim_config).validate()
+    way = THROUGH_WALL_WAYS_OUT.search(str(refused.value))
+    assert way is not None and way["robot"] == "robot" and way["speed"] is not None, refused.value  # eval's config's key
+    EvalRequest(methods=["greedy-dist"], sim="mujoco", sim_config_path=sim_config, settings={"robot.max_linear_mps": float(way["speed"])}).validate()
 
 
 def test_the_policy_services_own_method_and_device_are_checked_before_anything_starts(monkeypatch):
@@ -662,7 +725,7 @@ def test_up_refuses_weights_trained_with_another_entropy_window_before_it_starts
     2 m, under ``--set exploration.frontier.entropy_window_m=4``), passed up's checks and started every service: the
     policy service then refused the weights at its start. The checkpoint's own record (its ``frontier``, read without
     torch: ``weights.checkpoint_header``; one from before that record: its graph's window) says the window, and up
-    refuses before it starts anything, with the policy service's own words (``weights.input_mismatches``): the
+    refuses before it starts anything, with the policy service's own words (``weights.input_verdict``): the
     variants that read no entropy, another ``min_cluster_size_m`` (warned at the load) and weights that do not read
     so pass."""
     import dataclasses

@@ -3132,7 +3132,7 @@ def test_an_env_whose_graph_and_episodes_have_other_entropy_windows_is_refused(t
         assert env.explorer is not None and env.explorer.builder.frontier_config.entropy_window_m == 4.0
 
 
-def test_ensemble_of_benchmarks_runs_its_episodes_and_checks_each_members_window(tmp_path, monkeypatch):
+def test_ensemble_of_benchmarks_runs_its_episodes_and_checks_each_members_window(tmp_path, monkeypatch, capsys):
     """benchmarks/eval_ensemble.py replaced ``registry.make_learned_policy`` with a function of the arguments it had
     before ``sensor`` (and now ``frontier``) were passed: every episode failed (``TypeError: make_ensemble() got an
     unexpected keyword argument 'sensor'``). It takes them now, and its members, loaded by their paths, are held to the
@@ -3150,16 +3150,14 @@ def test_ensemble_of_benchmarks_runs_its_episodes_and_checks_each_members_window
     wide = Args(variant="cso", entropy_window_m=4.0, out_dir=str(tmp_path / "wide"))
     save_weights(tmp_path / "wide", build_model(wide, torch.device("cpu")), wide, {"ppo_decisions": 0})
     runs = {"shipped": weights_path("cso", SensorConfig.preset("lidar", 360.0)), "wide": tmp_path / "wide" / "cso.pt"}
-    original = registry.make_learned_policy
     for name, member in runs.items():
-        out = tmp_path / name
         with pytest.raises(SystemExit):
-            ensemble.main(["--member", str(member), "--", "--method", "cso", "--lidar-fov", "360", "--workers", "1", "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(out)])
-        registry.make_learned_policy = original  # each run its own ensemble
+            ensemble.main(["--member", str(member), "--", "--method", "cso", "--lidar-fov", "360", "--workers", "1", "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / name)])
     summary = json.loads((tmp_path / "shipped" / "summary.json").read_text())
     assert summary["methods"]["cso"]["episodes"] == 1, summary.get("failures")
-    failed = json.loads((tmp_path / "wide" / "summary.json").read_text())
-    assert "trained with frontier.entropy_window_m 4 m, this run's is 2 m" in json.dumps(failed)
+    # refused before any episode, as eval refuses the weights of a method (registry.check_weights: the members' too)
+    assert "trained with frontier.entropy_window_m 4 m, this run's is 2 m" in capsys.readouterr().err
+    assert not (tmp_path / "wide" / "summary.json").exists()
 
 
 def test_ensemble_of_benchmarks_decides_over_its_members_graph_not_the_served_weights(tmp_path, monkeypatch):
@@ -3190,7 +3188,7 @@ def test_ensemble_of_benchmarks_decides_over_its_members_graph_not_the_served_we
     assert seen and {(g.knn, g.distance_scale_m, g.use_entropy) for g in seen} == {(4, 5.0, True)}, seen[:1]
 
 
-def test_ensemble_of_benchmarks_refuses_members_of_another_variant(tmp_path, monkeypatch):
+def test_ensemble_of_benchmarks_refuses_members_of_another_variant(tmp_path, monkeypatch, capsys):
     """A member trained as ``cso-no-info`` (its entropy input 0 throughout training) in an ensemble run as
     ``--method cso`` was fed the entropy input it never saw, where the method's own weights file of another variant is
     refused (``registry._model_for``). It is refused so, naming the member."""
@@ -3209,8 +3207,45 @@ def test_ensemble_of_benchmarks_refuses_members_of_another_variant(tmp_path, mon
     with pytest.raises(SystemExit):
         ensemble.main(["--member", str(tmp_path / "blind" / "cso-no-info.pt"), "--", "--method", "cso", "--lidar-fov", "360", "--workers", "1",
                        "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / "out")])
-    failed = json.dumps(json.loads((tmp_path / "out" / "summary.json").read_text()))
+    failed = capsys.readouterr().err  # before any episode, as eval refuses a method's own weights file of another variant
     assert "cso-no-info.pt holds weights trained as 'cso-no-info'" in failed, failed[:2000]
+    assert not (tmp_path / "out" / "summary.json").exists()
+
+
+def test_ensemble_of_benchmarks_warns_of_its_members_minimum_cluster_as_every_loader_does(tmp_path, monkeypatch, caplog):
+    """benchmarks/eval_ensemble.py held its members to the run's frontier settings with a copy of the loaders' split of
+    refused and warned, which kept the refusals only: members trained with ``frontier.min_cluster_size_m`` 0.3 m ran with
+    0.5 m without the warning eval gives for a method's own weights. The members' warnings (``registry.input_verdict``,
+    the one decision every loader takes) are said once by eval, and held by the policy as ``make_learned_policy``'s are."""
+    import shutil
+
+    from cso_runtime import cli
+    from cso_runtime.learned import registry
+
+    unset_weights_env(monkeypatch)
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    monkeypatch.setattr(registry, "make_learned_policy", registry.make_learned_policy)  # main() gives them back; in case it fails
+    monkeypatch.setattr(registry, "check_weights", registry.check_weights)
+    spec = importlib.util.spec_from_file_location("eval_ensemble", Path(__file__).parents[1] / "benchmarks" / "eval_ensemble.py")
+    ensemble = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ensemble)
+    member = tmp_path / "member" / "cso.pt"  # the shipped weights by another path: the warning names the member, not them
+    member.parent.mkdir()
+    shutil.copy(weights_path("cso", SensorConfig.preset("lidar", 360.0)), member)
+    said = (
+        f"the weights of cso ({member}) were trained with frontier.min_cluster_size_m 0.3 m, this run's is 0.5 m: its candidate"
+        " goals would be other frontier clusters than it learned to choose among"
+    )
+    held: list[list[str]] = []
+    decide = ensemble.EnsemblePolicy.probabilities
+    monkeypatch.setattr(ensemble.EnsemblePolicy, "probabilities", lambda self, obs, mask: (held.append(self.input_warnings), decide(self, obs, mask))[1])
+    with caplog.at_level("WARNING"), pytest.raises(SystemExit):
+        ensemble.main(["--member", str(member), "--", "--method", "cso", "--lidar-fov", "360", "--workers", "1", "--maps", "generated:small:1:0",
+                       "--max-steps", "5", "--set", "frontier.min_cluster_size_m=0.5", "--out", str(tmp_path / "out")])
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["methods"]["cso"]["episodes"] == 1
+    assert said in caplog.text
+    assert held and all(len(warned) == 1 and warned[0].startswith(said) for warned in held), held[:1]
+    assert registry.check_weights is ensemble.registry.check_weights and registry.check_weights.__name__ == "check_weights"  # given back
 
 
 def test_a_checkpoints_header_reads_without_torch_as_torch_loads_it_and_runs_none_of_its_code(tmp_path):

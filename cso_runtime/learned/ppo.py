@@ -298,7 +298,7 @@ class Args:
     entropy_window_m: float = 2.0
     """gamma of Eq. 4 in the training episodes (``frontier.entropy_window_m``) and the graph's entropy input
     (``GraphConfig.entropy_window_m``). The weights record it, and a run of another window refuses them
-    (``registry.input_mismatches``): evaluate weights trained with 4 m with ``--set frontier.entropy_window_m=4``."""
+    (``registry.input_verdict``): evaluate weights trained with 4 m with ``--set frontier.entropy_window_m=4``."""
     edge_messages: bool = False
     """Edge features also enter the attention's keys and messages (``NetworkConfig.edge_messages``)."""
     distance_prior: float = 0.0

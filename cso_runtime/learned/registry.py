@@ -21,7 +21,7 @@ import torch
 from cso_runtime.config import FrontierConfig, MaskConfig, SensorConfig
 from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph, frontier_count
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
-from cso_runtime.learned.weights import (  # noqa: F401 - WEIGHTS_DIR_ENV, INPUT_CHECKS and InputMismatch re-exported
+from cso_runtime.learned.weights import (  # noqa: F401 - WEIGHTS_DIR_ENV, INPUT_CHECKS, InputMismatch and input_mismatches re-exported
     INPUT_CHECKS,
     TRAINED_FRONTIER_BEFORE_RECORD,
     WEIGHTS_DIR_ENV,
@@ -29,6 +29,7 @@ from cso_runtime.learned.weights import (  # noqa: F401 - WEIGHTS_DIR_ENV, INPUT
     checkpoint_frontier,
     has_weights,
     input_mismatches,
+    input_verdict,
     weights_file_refusal,
     weights_path,
 )
@@ -50,7 +51,7 @@ def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig
 
 
 def _model_for(name: str, device: str, sensor: SensorConfig | None, frontier: FrontierConfig | None) -> tuple[GraphActorCritic, GraphConfig, list[str]]:
-    """``name``'s network and graph, and the warnings of ``input_mismatches`` (the run's ``frontier`` settings against
+    """``name``'s network and graph, and the warnings of ``input_verdict`` (the run's ``frontier`` settings against
     those the weights were trained with; None: ``FrontierConfig``'s defaults, what ``ObservationBuilder()`` uses).
     Every loader of a method's weights comes here (``check_weights``, ``make_learned_policy``: eval, its workers, the
     policy service, ``doctor``). CheckpointError when the file holds another variant's weights (a ``--weights``
@@ -60,12 +61,10 @@ def _model_for(name: str, device: str, sensor: SensorConfig | None, frontier: Fr
     model, graph, variant, trained = _cached_model(str(path), str(device))
     if variant is not None and variant != name:
         raise CheckpointError(f"{path} holds weights trained as {variant!r}, not {name!r}: the file must be named for its variant ({variant}.pt)")
-    use_entropy = VARIANTS[name].use_entropy if name in VARIANTS else graph.use_entropy
-    mismatches = input_mismatches(trained, frontier or FrontierConfig(), use_entropy)
-    refused = [m.said(name, path) for m in mismatches if m.refused]
-    if refused:
-        raise CheckpointError("; ".join(refused))
-    return model, graph, [m.said(name, path) for m in mismatches if not m.refused]
+    verdict = input_verdict(name, path, trained, frontier, graph.use_entropy)
+    if verdict.refused:
+        raise CheckpointError(verdict.refusal)
+    return model, graph, list(verdict.warned)
 
 
 def check_weights(name: str, device: str = "cpu", sensor: SensorConfig | None = None, frontier: FrontierConfig | None = None) -> list[str]:

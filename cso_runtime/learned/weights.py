@@ -384,6 +384,42 @@ def input_mismatches(trained: FrontierConfig, run: FrontierConfig, use_entropy: 
     return found
 
 
+@dataclasses.dataclass(frozen=True)
+class InputVerdict:
+    """What loading weights with a run's frontier settings refuses and what it warns of (``input_verdict``), one line
+    each, in the words every loader says them with."""
+
+    refused: tuple[str, ...] = ()
+    warned: tuple[str, ...] = ()
+
+    @property
+    def refusal(self) -> str:
+        """The refused lines as one message; "" where none is refused."""
+        return "; ".join(self.refused)
+
+    def __add__(self, other: InputVerdict) -> InputVerdict:
+        """Both verdicts' lines, this one's first: what loading both sets of weights refuses and warns of."""
+        return InputVerdict(self.refused + other.refused, self.warned + other.warned)
+
+
+def input_verdict(name: str, path: Path, trained: FrontierConfig, run: FrontierConfig | None, graph_use_entropy: bool = True) -> InputVerdict:
+    """The one decision of what loading the weights of method ``name`` at ``path``, trained with the frontier settings
+    ``trained`` (``checkpoint_frontier``), with the run's ``run`` (None: ``FrontierConfig``'s defaults, what
+    ``ObservationBuilder()`` builds with) refuses and what it warns of (``input_mismatches``, ``INPUT_CHECKS``), with
+    the messages (``InputMismatch.said``). The entropy window counts only for a variant that reads I
+    (``policies.VARIANTS``; ``graph_use_entropy``, its graph's own switch, for a name that is no variant). Every load
+    (``registry._model_for``), ``up``'s check before anything starts (``recorded_input_refusal``) and
+    benchmarks/eval_ensemble.py's members decide with it."""
+    from cso_runtime.policies import VARIANTS  # noqa: PLC0415 - no torch; policies imports this module
+
+    use_entropy = VARIANTS[name].use_entropy if name in VARIANTS else graph_use_entropy
+    mismatches = input_mismatches(trained, run or FrontierConfig(), use_entropy)
+    return InputVerdict(
+        refused=tuple(m.said(name, path) for m in mismatches if m.refused),
+        warned=tuple(m.said(name, path) for m in mismatches if not m.refused),
+    )
+
+
 def checkpoint_frontier(ckpt: Mapping[str, Any], graph_window_m: float) -> FrontierConfig:
     """The frontier settings the weights of ``ckpt`` (a checkpoint ``registry.save_checkpoint`` wrote, whose graph
     divides I by ``graph_window_m``) were trained with: its ``frontier`` record, or, in a checkpoint written before the
@@ -454,15 +490,15 @@ def recorded_frontier(path: Path) -> FrontierConfig | None:
     return checkpoint_frontier(header, float(window))
 
 
-def recorded_input_refusals(name: str, frontier: FrontierConfig, sensor: SensorConfig | None = None) -> list[str]:
-    """The ``input_mismatches`` that loading ``name``'s weights (for ``sensor``) with the run's ``frontier`` settings
-    would refuse, one line each, as the checkpoint records them (``recorded_frontier``), in the policy service's words:
-    what ``up`` refuses before it starts anything, where the policy service would refuse them at its start. [] where
+def recorded_input_refusal(name: str, frontier: FrontierConfig, sensor: SensorConfig | None = None) -> str:
+    """What loading ``name``'s weights (for ``sensor``) with the run's ``frontier`` settings would refuse
+    (``input_verdict``'s refusal), as the checkpoint records them (``recorded_frontier``), in the policy service's words:
+    what ``up`` refuses before it starts anything, where the policy service would refuse it at its start. "" where
     they match or the file does not read without torch (the policy service's load then says it)."""
     from cso_runtime.policies import VARIANTS  # noqa: PLC0415 - no torch; policies imports this module
 
     path = weights_path(name, sensor)
     trained = recorded_frontier(path)
     if trained is None or name not in VARIANTS:
-        return []
-    return [m.said(name, path) for m in input_mismatches(trained, frontier, VARIANTS[name].use_entropy) if m.refused]
+        return ""
+    return input_verdict(name, path, trained, frontier).refusal
