@@ -442,7 +442,8 @@ class PlannerConfig:
     lookahead_m: float = 0.5
     """Pure-pursuit lookahead distance along the path."""
     rotate_in_place_rad: float = 0.9
-    """Rotate in place when the heading error to the lookahead point exceeds this."""
+    """Rotate in place when the heading error to the lookahead point exceeds this (or pi / 2, whichever is less:
+    pure pursuit towards a point behind the robot drives away from it, ``planner.PURSUIT_MAX_HEADING_ERROR_RAD``)."""
     slow_down_distance_m: float = 0.5
     """Scale speed down when the nearest obstacle in the robot's path is closer than this to its front."""
     stop_distance_m: float = 0.03

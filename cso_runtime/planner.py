@@ -43,6 +43,11 @@ CREEP_BACK_MPS = 0.2
 REVERSE_LOOKAHEAD_M = 0.1
 """The least distance behind the robot checked before a reverse command (a period's travel is 4-5 cm)."""
 
+PURSUIT_MAX_HEADING_ERROR_RAD = 0.5 * math.pi
+"""Pure pursuit never drives towards a lookahead point more than this off the heading, whatever
+``planner.rotate_in_place_rad`` (its bounds reach pi): the arc to a point behind the robot starts forward, away from
+it, and at pi it is a straight line away at full speed. The robot turns in place instead."""
+
 ESCAPE_HEADING_STEP_RAD = math.radians(5.0)
 """The progress recovery's candidate headings are this far apart."""
 ESCAPE_UNSEEN_MARGIN_RAD = math.radians(45.0)
@@ -73,7 +78,12 @@ def descend_path(distance_m: np.ndarray, geometry: GridGeometry, goal_cell: tupl
     """Path (N x 2, metres, robot first) from the robot to ``goal_cell`` by steepest descent of D.
 
     ``distance_m`` must be a geodesic distance map from the robot (``geodesic_distance``); a goal at
-    infinite distance raises NoPath.
+    infinite distance raises NoPath. A diagonal step between two cells of infinite distance (a line of
+    untraversable cells one cell thick, unknown cells between two LiDAR rays) is never taken: the fast
+    marching that made D is 4-connected and does not pass there either, so such a step would take the path
+    through the corner of cells it must not enter, and far shorter than the distance D says. Every cell of
+    finite distance beyond the robot's has a 4-connected neighbour of smaller distance, so the descent
+    still reaches the robot.
     """
     y, x = int(goal_cell[0]), int(goal_cell[1])
     if not np.isfinite(distance_m[y, x]):
@@ -88,6 +98,9 @@ def descend_path(distance_m: np.ndarray, geometry: GridGeometry, goal_cell: tupl
         ok = (nb[:, 0] >= 0) & (nb[:, 0] < ny) & (nb[:, 1] >= 0) & (nb[:, 1] < nx)
         nb = nb[ok]
         values = distance_m[nb[:, 0], nb[:, 1]]
+        # A diagonal's two sides (same row, same column) lie on the grid whenever the diagonal does.
+        squeezed = (nb[:, 0] != y) & (nb[:, 1] != x) & ~np.isfinite(distance_m[nb[:, 0], x]) & ~np.isfinite(distance_m[y, nb[:, 1]])
+        values = np.where(squeezed, np.inf, values)
         k = int(np.argmin(values))
         if not values[k] < here:
             break
@@ -113,7 +126,8 @@ def plan_path(
     a decision message gives it), fast marching stops just past the goal: the descent from the goal
     reads only cells closer than it, and below its bound a bounded pass is exactly the full map
     (``geodesic_distance``), so the path is the same; a goal the bounded pass does not reach in time
-    (a wrong hint) gets the whole map. Raises NoPath when the goal is unreachable or off the map.
+    (a wrong hint) gets the whole map. Raises NoPath when the goal is off the map, on a cell that is not
+    traversable, or unreachable, its message saying which.
     """
     gy, gx = geometry.world_to_cell(goal_xy_m[0], goal_xy_m[1])
     if not geometry.in_bounds(gy, gx):
@@ -126,6 +140,12 @@ def plan_path(
             d = None
     if d is None:
         d = geodesic_distance(traversable, geometry, start_xy_m)
+    if not np.isfinite(d[int(gy), int(gx)]) and not traversable[int(gy), int(gx)]:
+        # Said apart from a goal no path leads to: the goal itself lies where the robot cannot stand.
+        raise NoPath(
+            f"goal ({float(goal_xy_m[0]):.2f}, {float(goal_xy_m[1]):.2f}) m is on a cell that is not traversable "
+            "(an obstacle, within robot.radius_m of one, or unknown)"
+        )
     path = descend_path(d, geometry, (int(gy), int(gx)))
     path[-1] = np.asarray(goal_xy_m, dtype=float)
     return path
@@ -322,7 +342,7 @@ class PathFollower:
         v_max, w_max = self.robot.max_linear_mps, self.robot.max_angular_radps
         target = path_xy_m[look]
         heading_error = self._heading_error(pose, target)
-        if abs(heading_error) > self.config.rotate_in_place_rad:
+        if abs(heading_error) > min(self.config.rotate_in_place_rad, PURSUIT_MAX_HEADING_ERROR_RAD):
             return VelocityCommand(0.0, math.copysign(w_max, heading_error))
         travel, _ = self.clearance_ahead(scan)
         scale = self.obstacle_speed_scale(travel)
@@ -631,7 +651,8 @@ class LocalPlanner:
         self.progress_index = 0
         self.status = PlannerStatus.IDLE
         self.blocked_why = ""
-        """Why the last goal could not be planned (``NoPath``'s message: off the map, unreachable); empty otherwise."""
+        """Why the last goal could not be planned (``NoPath``'s message: off the map, on a cell that is not traversable, unreachable);
+        empty otherwise."""
         self.contacts_xy_m = np.zeros((0, 2))
         """Centres (metres) of the cells a pinned robot was pressed against (``mark_contact``): obstacles that no scan
         mapped, kept for the planner's life (an episode) and inflated into every grid it plans on."""

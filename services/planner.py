@@ -473,6 +473,9 @@ class PlannerService(Service):
             if age_s > self.params.stale_after_s and not self.ctx.lockstep:
                 cmd, reason = VelocityCommand(), f"stale: inputs of step {k} are {age_s:.1f} s old"
                 self.set_state("stale", reason)
+                # The robot stops because its inputs are stale, as on a silence (``on_tick``): the progress and stall
+                # checks start over, or a lagging link longer than the progress window ended the goal (or drove out).
+                self.planner.stood_still()
             else:
                 if self.stopped_for_stale:
                     # The robot stood still because its inputs were stale (or no planner ran), not because the goal is

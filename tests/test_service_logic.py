@@ -654,6 +654,30 @@ def test_real_time_planner_says_which_input_went_silent_and_does_not_blame_the_g
     assert last.step == 90 and last.reason == "" and planner.planner.status.value == "following"
 
 
+def test_real_time_planner_stopped_for_inputs_that_arrive_stale_does_not_blame_the_goal_for_the_wait():
+    """A lagging link: odometry and scans go on coming, each older than ``stale_after_s`` as it arrives, and the
+    planner stops the robot on every pair. Unlike a silence (``on_tick``), that stop did not start the progress and
+    stall checks over: once fresh inputs came back after longer than the progress window, the robot standing where it
+    was stopped, the first command was the progress recovery's (``escape``), and the next such wait ended the goal
+    ``no_progress``."""
+    planner, out, odom, scan, _ = _real_time_planner_with_a_goal(stale_after_s=2.0)
+    planner.on_message("r0", "odom", OdometryMsg(1, odom.stamp_s + 0.25, odom.pose), time.monotonic())
+    planner.on_message("r0", "scan", ScanMsg(1, scan.scan, scan.sensor_pose), time.monotonic())
+    driving = [m for t, m in out if t == "cmd_vel"][-1]
+    assert driving.step == 1 and driving.reason == "" and driving.command.linear_mps > 0
+    for step in range(2, 50):  # 12 s of the robot's time (progress_window_s is 10 s), each pair 3 s late
+        late_s = time.monotonic() - 3.0
+        planner.on_message("r0", "odom", OdometryMsg(step, odom.stamp_s + 0.25 * step, odom.pose), late_s)
+        planner.on_message("r0", "scan", ScanMsg(step, scan.scan, scan.sensor_pose), late_s)
+    stops = [m for t, m in out if t == "cmd_vel" and m.step >= 2]
+    assert len(stops) == 48 and all(m.reason.startswith("stale: inputs of step") and m.command == VelocityCommand() for m in stops)
+    planner.on_message("r0", "odom", OdometryMsg(50, odom.stamp_s + 12.5, odom.pose), time.monotonic())
+    planner.on_message("r0", "scan", ScanMsg(50, scan.scan, scan.sensor_pose), time.monotonic())
+    last = [m for t, m in out if t == "cmd_vel"][-1]
+    assert last.step == 50 and last.reason == "" and last.command == driving.command, last  # following, as before the wait
+    assert planner.planner.status.value == "following" and planner.planner.recovery.escapes == 0 and planner.planner.stall.stalled_periods == 0
+
+
 def test_real_time_planner_says_how_long_its_inputs_have_been_silent_while_they_are(caplog):
     """The fake LIMO killed mid-run: ``status`` said "stale: no odometry for 1.1 s, no scan for 1.1 s" for as long
     as the robot was gone (the reason was written once, at the stop). It now says how long the silence has lasted,
