@@ -180,6 +180,10 @@ class BagExportStats:
 
 TIME_MODES = ("sim", "received")
 
+LEFT_EPISODES_STEPS_KEPT = 16
+"""How many of the episodes left last ``StepTimeline`` keeps every step's time of, for their late messages; of the ones
+before, only their offset and last time (a recording of many episodes would otherwise keep a time per step of all)."""
+
 
 class StepTimeline:
     """Bag time of each message from the robot's own clock: the stamps of the scans and odometry, each its own, laid
@@ -190,7 +194,9 @@ class StepTimeline:
     between), and one of an episode whose first scan or odometry is still to come (another key, handled first) takes
     the latest time, not a step of the episode before. Messages of no id (0: a recording before the ids, a publisher
     without them) tell it by their step numbers going back (by more than the one step a message can lag), which misses
-    an episode after one of fewer than three steps."""
+    an episode after one of fewer than three steps. It keeps every step's time of the last ``LEFT_EPISODES_STEPS_KEPT``
+    episodes left, and of the ones before their last alone (a late message of one takes its last time, or its own stamp's
+    for a scan or odometry): a long recording costs a few numbers per episode, not one per step."""
 
     def __init__(self, start_ns: int, step_s: float = 0.25) -> None:
         self.start_ns, self.step_s = start_ns, step_s
@@ -202,7 +208,10 @@ class StepTimeline:
         self.episode = 0
         """The current episode's id (0: none known)."""
         self.left: dict[int, tuple[float, dict[int, float]]] = {}
-        """The episodes left, by id: their offsets and times by step, for their late messages."""
+        """The episodes left, by id: their offsets and times by step (of the ones before the last
+        ``LEFT_EPISODES_STEPS_KEPT``, their last step's alone), for their late messages."""
+        self.left_whole: deque[int] = deque()
+        """The ids of the episodes left whose times of every step ``left`` still keeps, the oldest first."""
 
     def ns(self, t_s: float) -> int:
         """The bag time of ``t_s`` on this timeline."""
@@ -220,7 +229,7 @@ class StepTimeline:
         new = episode != self.episode if episode and self.episode else step < self.max_step - 1
         if new:  # a new episode: its clock and steps start again
             if self.episode:
-                self.left[self.episode] = (self.offset_s, self.by_step)
+                self.leave(self.episode)
             self.offset_s = self.last_s + self.step_s - (stamp_s - self.first_stamp_s)
             self.by_step = {}
             self.max_step = -1
@@ -231,6 +240,18 @@ class StepTimeline:
         self.max_step = max(self.max_step, step)
         self.last_s = max(self.last_s, t)
         return self.ns(t)
+
+    def leave(self, episode: int) -> None:
+        """Keep the current episode's times as ``episode``'s, left; of the one left ``LEFT_EPISODES_STEPS_KEPT`` before,
+        its last step's time alone."""
+        self.left[episode] = (self.offset_s, self.by_step)
+        self.left_whole.append(episode)
+        if len(self.left_whole) > LEFT_EPISODES_STEPS_KEPT:
+            old = self.left_whole.popleft()
+            if old in self.left:
+                offset_s, by_step = self.left[old]
+                last = max(by_step, key=by_step.__getitem__, default=None)
+                self.left[old] = (offset_s, {} if last is None else {last: by_step[last]})
 
     def at(self, step: int, episode: int = 0) -> int:
         """The bag time of a message that carries only its step (a map, a goal...) and perhaps its episode id: its

@@ -386,17 +386,21 @@ def guarded_callback(callback: Callable[..., None], failed: Callable[[str], None
     among the arguments is answered with an error naming the callback and what it raised, and ended at once: left to
     be ended when the ``Query`` was freed, a log handler that kept the record (and so the traceback, and the query)
     made its querier wait out its whole timeout. The one guard of the services (``Service.guarded``) and the
-    launcher's (``Launcher._guarded``)."""
+    launcher's (``Launcher._guarded``). A ``BaseException`` that is no ``Exception`` (a ``SystemExit`` or
+    ``KeyboardInterrupt`` raised in it) is counted and answered alike, then raised on: let through first, it was in no
+    count, its query got no error, and Zenoh's own log record of it kept the query (its querier waited out its timeout)."""
     said = callback_name(callback) if name is None else name
 
     def call(*args: Any) -> None:
         try:
             callback(*args)
-        except Exception as exc:  # noqa: BLE001 - counted and logged by ``failed``, then answered
+        except BaseException as exc:  # counted and logged by ``failed``, then answered; raised on if no Exception
             failed(said)  # first: a querier told of the error then finds it counted in the status it asks for next
             for arg in args:
                 if isinstance(arg, zenoh.Query):
                     end_failed_query(arg, f"{said} raised {type(exc).__name__}: {exc}")
+            if not isinstance(exc, Exception):
+                raise
 
     return call
 

@@ -700,3 +700,24 @@ def test_a_late_message_of_any_episode_left_keeps_its_times_and_one_of_an_episod
     mixed = StepTimeline(T0_NS)
     assert [mixed.stamp(k, 0.25 * k, 5) for k in (0, 1, 2)] + [mixed.stamp(k, 0.25 * k) for k in (0, 1)] == [T0_NS + k * 250_000_000 for k in range(5)]
     assert mixed.at(1, 5) == T0_NS + 250_000_000 and mixed.at(1) == T0_NS + 1_000_000_000
+
+
+def test_a_long_recording_of_many_episodes_keeps_every_step_time_of_the_last_episodes_left_alone():
+    """``StepTimeline`` kept the time of every step of every episode left, for their late messages: a recording of many
+    episodes grew by one time per step for the whole export. The last ``LEFT_EPISODES_STEPS_KEPT`` episodes left keep
+    every step's; the ones before, their last (a late map of one takes it; a late scan, its own stamp's time still)."""
+    from cso_runtime.bag_export import LEFT_EPISODES_STEPS_KEPT, StepTimeline
+
+    timeline = StepTimeline(T0_NS)
+    episodes, steps = LEFT_EPISODES_STEPS_KEPT + 24, 30
+    for episode in range(1, episodes + 1):
+        for k in range(steps):
+            timeline.stamp(k, 0.25 * k, episode)
+    kept = sum(len(by_step) for _, by_step in timeline.left.values())
+    assert len(timeline.left) == episodes - 1 and kept == LEFT_EPISODES_STEPS_KEPT * steps + (episodes - 1 - LEFT_EPISODES_STEPS_KEPT), kept
+    episode_s = steps * 0.25  # each episode follows the one before by one step
+    first_last_ns = T0_NS + round((steps - 1) * 0.25 * 1e9)
+    assert timeline.at(3, 1) == first_last_ns  # a late map of the first episode: its last time
+    assert timeline.stamp(3, 0.75, 1) == T0_NS + 750_000_000  # a late scan of it: its own time
+    recent = episodes - 1  # the one left last: each step's time still
+    assert timeline.at(3, recent) == T0_NS + round(((recent - 1) * episode_s + 0.75) * 1e9)

@@ -3277,3 +3277,47 @@ def test_a_checkpoints_header_reads_without_torch_as_torch_loads_it_and_runs_non
         archive.writestr("loud/data.pkl", pickle.dumps({"graph": {"entropy_window_m": 4.0}, "frontier": Loud()}))
     assert checkpoint_header(tmp_path / "loud.pt") is None and recorded_frontier(tmp_path / "loud.pt") is None
     assert checkpoint_header(tmp_path / "cso.json") is None and checkpoint_header(tmp_path / "none.pt") is None
+
+
+def test_a_crafted_checkpoint_header_costs_no_memory_nor_a_crash(tmp_path):
+    """``weights.checkpoint_header`` reads a file before anything starts (``up``), so a crafted one must cost neither
+    memory nor a traceback: a ``data.pkl`` compressed to a bomb (``zipfile`` inflates it whole before cutting it to the
+    size said: 201 bytes of bzip2 made 141 MiB), a 9-byte pickle naming memo index 2**23 (the C unpickler grows its memo
+    to it: 64 MiB), a pickle over the size cap (about 70 bytes of objects per byte), and numbers no float holds (an
+    OverflowError out of ``up``)."""
+    import struct
+    import tracemalloc
+    import zipfile
+
+    from cso_runtime.config import FrontierConfig
+    from cso_runtime.learned.weights import checkpoint_frontier, checkpoint_header, recorded_frontier
+
+    def archive(name: str, data: bytes, compress_type: int = zipfile.ZIP_STORED, said_size: int | None = None) -> Path:
+        path = tmp_path / f"{name}.pt"
+        with zipfile.ZipFile(path, "w") as zf:
+            zf.writestr(zipfile.ZipInfo(f"{name}/data.pkl"), data, compress_type=compress_type)
+        if said_size is not None:  # the size the archive says, in its local header and its central directory
+            raw = bytearray(path.read_bytes())
+            for signature, offset in ((b"PK\x03\x04", 22), (b"PK\x01\x02", 24)):
+                at = raw.index(signature) + offset
+                raw[at : at + 4] = struct.pack("<I", said_size)
+            path.write_bytes(bytes(raw))
+        return path
+
+    crafted = [
+        archive("bomb", b"\0" * (32 << 20), zipfile.ZIP_BZIP2, said_size=10),
+        archive("memo", b"\x80\x02}r" + struct.pack("<I", 1 << 23) + b"."),
+        archive("wide", b"\x80\x02" + b"}" * (1 << 20) + b"."),
+    ]
+    for path in crafted:
+        tracemalloc.start()
+        try:
+            header = checkpoint_header(path)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 8 << 20, (path.name, peak)
+        assert header is None or header == {}, path.name
+    huge = 10**400
+    assert recorded_frontier(archive("huge", pickle.dumps({"graph": {"entropy_window_m": huge}}, protocol=2))) is None
+    assert checkpoint_frontier({"frontier": {"entropy_window_m": huge, "min_cluster_size_m": 0.5}}, 2.0) == FrontierConfig(min_cluster_size_m=0.5, entropy_window_m=2.0)

@@ -591,3 +591,33 @@ def test_a_guarded_queryable_that_raises_answers_its_querier_at_once_with_an_err
     assert [r.ok for r in replies] == [None] and replies[0].err is not None, replies
     assert replies[0].err.payload.to_string() == "episode_status_query raised RuntimeError: a bug in the reply"
     assert took_s < 5.0, f"the querier waited {took_s:.1f} s for a query that had failed"
+
+
+def test_a_guarded_queryable_that_raises_system_exit_is_counted_and_answers_its_querier_at_once(caplog):
+    """``transport.guarded_callback`` caught ``Exception`` alone: a ``SystemExit`` (or ``KeyboardInterrupt``) raised in a
+    callback went by it into Zenoh's thread, in no count, its query answered with no error, and Zenoh's log record of it
+    (kept here by pytest's handler, as by any handler that keeps records) kept the query: the querier waited out its
+    whole timeout. It is counted and answered like any error, then raised on."""
+    from cso_runtime.transport import guarded_callback
+
+    failed: list[str] = []
+
+    def episode_status_query(query: Any) -> None:
+        raise SystemExit("stop here")
+
+    port = free_tcp_port()
+    with (
+        caplog.at_level("ERROR"),
+        open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as router,
+        open_session(TransportConfig(mode="client", connect=[loopback_endpoint(port)])) as session,
+        session.declare_queryable("t1/probe/q", guarded_callback(episode_status_query, failed.append)),
+        router.declare_querier("t1/probe/q", timeout=8.0) as querier,
+    ):
+        wait_for(lambda: querier.matching_status.matching, HANG_DEADLINE_S, "the queryable at the router")
+        started_s = time.monotonic()
+        replies = list(querier.get())
+        took_s = time.monotonic() - started_s
+    assert failed == ["episode_status_query"]
+    assert [r.ok for r in replies] == [None] and replies[0].err is not None, replies
+    assert replies[0].err.payload.to_string() == "episode_status_query raised SystemExit: stop here"
+    assert took_s < 4.0, f"the querier waited {took_s:.1f} s for a query that had failed"

@@ -18,6 +18,7 @@ import collections
 import dataclasses
 import io
 import json
+import math
 import os
 import pickle
 import zipfile
@@ -431,22 +432,38 @@ def checkpoint_frontier(ckpt: Mapping[str, Any], graph_window_m: float) -> Front
     if not isinstance(record, dict):
         return before
     known = {f.name for f in dataclasses.fields(FrontierConfig)}
-    return dataclasses.replace(before, **{k: float(v) for k, v in record.items() if k in known and isinstance(v, (int, float)) and not isinstance(v, bool)})
+    return dataclasses.replace(before, **{k: value for k, v in record.items() if k in known and (value := _finite(v)) is not None})
 
 
-CHECKPOINT_HEADER_MAX_BYTES = 16 * 1024 * 1024
+def _finite(value: Any) -> float | None:
+    """``value`` as a finite float where it is a number (not a bool) that is one; None otherwise (an int too large for a
+    float, NaN, infinity: not a setting ``train`` wrote)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
+
+
+CHECKPOINT_HEADER_MAX_BYTES = 256 * 1024
 """The largest pickle of a checkpoint's plain data (``data.pkl``: its tensors are kept apart) that ``checkpoint_header``
-reads: a cso-runtime checkpoint's is a few kB."""
+reads: a cso-runtime checkpoint's is about 4 kB (a few dozen tensors' entries and the settings). What a pickle builds
+grows with its size (some 70 bytes of objects per byte; a dict of keys of one hash takes time growing with their
+square): a crafted file of this size costs at most tens of MB and about a second."""
 
 
 def _no_tensor(*_args: Any, **_kwargs: Any) -> None:
     """What a tensor (and its storage) of a checkpoint stands as when ``checkpoint_header`` reads it: nothing."""
 
 
-class _HeaderUnpickler(pickle.Unpickler):
+class _HeaderUnpickler(pickle._Unpickler):
     """``torch.save``'s ``data.pkl`` read without torch: tensors and their storages (persistent ids, torch's rebuild
     functions) stand as None, and no other class than an ``OrderedDict`` is built, so that reading a file runs none of
-    its code (``torch.load(weights_only=True)`` allows no more)."""
+    its code (``torch.load(weights_only=True)`` allows no more). Python's own unpickler, not the C one: that one grows its
+    memo to the largest index a pickle names (a 9-byte pickle naming index 2**32 - 1 asks for 64 GiB, and zeroes it),
+    where Python's keeps a dict, as torch's weights-only unpickler does."""
 
     def find_class(self, module: str, name: str) -> Any:
         if (module, name) == ("collections", "OrderedDict"):
@@ -462,13 +479,19 @@ class _HeaderUnpickler(pickle.Unpickler):
 def checkpoint_header(path: Path) -> dict[str, Any] | None:
     """The plain data of the checkpoint at ``path`` (``registry.save_checkpoint``'s ``variant``, ``network``, ``graph``,
     ``frontier``, ``extra``; its ``state_dict``'s tensors as None), read from ``torch.save``'s zip archive without
-    torch; None for a file that is not one (missing, another program's, torch's legacy pickle: the load says more)."""
+    torch; None for a file that is not one (missing, another program's, torch's legacy pickle: the load says more).
+    Only a ``data.pkl`` stored as ``torch.save`` stores it (uncompressed, at most ``CHECKPOINT_HEADER_MAX_BYTES``) is
+    read: ``zipfile`` inflates a compressed entry whole before it cuts it to the size the archive says (a few hundred
+    bytes of bzip2 make gigabytes)."""
     try:
         with zipfile.ZipFile(path) as archive:
             pickles = [info for info in archive.infolist() if info.filename.endswith("/data.pkl") and info.filename.count("/") == 1]
-            if len(pickles) != 1 or pickles[0].file_size > CHECKPOINT_HEADER_MAX_BYTES:
+            if len(pickles) != 1:
                 return None
-            data = archive.read(pickles[0])
+            info = pickles[0]
+            if info.compress_type != zipfile.ZIP_STORED or info.compress_size != info.file_size or info.file_size > CHECKPOINT_HEADER_MAX_BYTES:
+                return None
+            data = archive.read(info)
         header = _HeaderUnpickler(io.BytesIO(data)).load()
     except Exception:  # noqa: BLE001 - a zip or a pickle of anything else: not said here, the load says what it is
         return None
@@ -485,9 +508,9 @@ def recorded_frontier(path: Path) -> FrontierConfig | None:
     if header is None or not isinstance(graph, dict):
         return None
     window = graph.get("entropy_window_m", TRAINED_FRONTIER_BEFORE_RECORD.entropy_window_m)  # GraphConfig's default, the same 2 m
-    if isinstance(window, bool) or not isinstance(window, (int, float)) or not 0 < window < float("inf"):
+    if (graph_window := _finite(window)) is None or graph_window <= 0:
         return None  # not a graph save_checkpoint wrote: the load says what it is
-    return checkpoint_frontier(header, float(window))
+    return checkpoint_frontier(header, graph_window)
 
 
 def recorded_input_refusal(name: str, frontier: FrontierConfig, sensor: SensorConfig | None = None) -> str:
