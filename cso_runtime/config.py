@@ -744,6 +744,13 @@ def import_attribute(spec: str, what: str, example: str) -> object:
     return found
 
 
+def utf8_text(text: str) -> str:
+    """``text`` with each character UTF-8 cannot carry escaped (``\\udcff``): a lone surrogate, what ``os.fsdecode`` makes of
+    a file name's bytes that are no UTF-8 (``b"\\xff"``), which msgpack, a UTF-8 CSV, log or JSON file and MuJoCo's XML
+    all refuse. Any other text is returned as it is (an ASCII one without a copy)."""
+    return text if text.isascii() else text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 def with_nearest(key: str, known: typing.Iterable[str], shown: str | None = None) -> str:
     """``key`` (or ``shown``, how the message writes it), followed by the known key it most likely misspells
     (``gama (did you mean gamma?)``), if any is close. A dotted key is also matched by its last part, so that

@@ -24,6 +24,10 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from cso_runtime.config import SensorConfig
 
 
 @dataclass
@@ -180,54 +184,114 @@ def check_foxglove() -> str:
     return f"a Foxglove WebSocket server answered on 127.0.0.1:{port}"
 
 
-def check_weights() -> str:
-    """Every shipped weights file of the learned methods loads, for eval's 360-degree sensor and the LIMO's 180; raises
-    when the ``cso`` file ``up --profile sim`` needs is missing, or a weights file or folder the environment gives is
-    not there (``given_weights_problem``: named as given, not as the shipped folder's missing file)."""
+DEFAULT_CONFIG = "the default config's"
+"""Whose frontier settings ``doctor`` compares weights with (``weights.input_verdict``'s ``against``): it has no run, so
+``FrontierConfig``'s defaults, what ``eval`` and the profiles run without a ``--set`` (configs/eval.yaml's)."""
+
+
+def _weights_files() -> list[tuple[str, SensorConfig, Path]]:
+    """(method, sensor, file) of each weights file there is, once per file: for eval's 360-degree sensor and the LIMO's
+    180 (``up --profile sim``)."""
     from cso_runtime.config import SensorConfig  # noqa: PLC0415
-    from cso_runtime.learned.registry import check_weights as load  # noqa: PLC0415
-    from cso_runtime.learned.weights import given_weights_problem, weights_path  # noqa: PLC0415
+    from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
     from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
 
-    if problem := given_weights_problem():
-        raise RuntimeError(problem)
-    loaded: list[str] = []
+    found: list[tuple[str, SensorConfig, Path]] = []
     for fov_deg in (360.0, 180.0):  # eval's --lidar-fov 360, and the LIMO's 180 of `up --profile sim`
         sensor = SensorConfig.preset("lidar", fov_deg=fov_deg)
         for method in LEARNED_METHODS:
             path = weights_path(method, sensor)
-            if path.is_file() and path.name not in loaded:
-                load(method, sensor=sensor)
-                loaded.append(path.name)
+            if path.is_file() and path.name not in {p.name for _, _, p in found}:
+                found.append((method, sensor, path))
+    return found
+
+
+def check_weights() -> str:
+    """Every shipped weights file of the learned methods loads, for eval's 360-degree sensor and the LIMO's 180; raises
+    when the ``cso`` file ``up --profile sim`` needs is missing, or a weights file or folder the environment gives is
+    not there (``given_weights_problem``: named as given, not as the shipped folder's missing file). Weights trained with
+    other frontier settings than the default config's (``CSO_WEIGHTS_DIR`` of a ``train --set entropy_window_m=4``) load
+    as a run with their settings loads them, and are noted with the ``--set`` that runs them, not failed: doctor has no run
+    whose settings they would contradict."""
+    from cso_runtime.config import FrontierConfig, SensorConfig  # noqa: PLC0415
+    from cso_runtime.learned.registry import check_weights as load  # noqa: PLC0415
+    from cso_runtime.learned.weights import given_weights_problem, input_verdict, recorded_frontier, weights_path  # noqa: PLC0415
+
+    if problem := given_weights_problem():
+        raise RuntimeError(problem)
+    loaded: list[str] = []
+    notes: list[str] = []
+    for method, sensor, path in _weights_files():
+        trained = recorded_frontier(path)  # None: no record read without torch; the load compares with the defaults
+        load(method, sensor=sensor, frontier=trained)
+        loaded.append(path.name)
+        if trained is not None:
+            verdict = input_verdict(method, path, trained, FrontierConfig(), against=DEFAULT_CONFIG)
+            notes += [*verdict.refused, *verdict.warned]
     if not weights_path("cso", SensorConfig.preset("lidar", fov_deg=180.0)).is_file():
         raise RuntimeError("no cso weights (the default method of `up --profile sim`)")
-    return f"{len(loaded)} weights files load ({weights_path('cso').parent}): {', '.join(loaded)}"
+    note = f"; note, not a failure (doctor compares with the default config; a run given the --set said uses them as trained): {'; '.join(notes)}" if notes else ""
+    return f"{len(loaded)} weights files load ({weights_path('cso').parent}): {', '.join(loaded)}{note}"
+
+
+def _trained_windows() -> list[float]:
+    """The entropy windows other than the default config's that weights files were trained with (``recorded_frontier``)."""
+    from cso_runtime.config import FrontierConfig  # noqa: PLC0415
+    from cso_runtime.learned.weights import recorded_frontier  # noqa: PLC0415
+
+    default = FrontierConfig().entropy_window_m
+    windows = {f.entropy_window_m for _, _, path in _weights_files() if (f := recorded_frontier(path)) is not None}
+    return sorted(w for w in windows if w != default)
 
 
 def check_profiles() -> str:
     """Every profile loads (yours in ./configs/profiles/ and the packaged ones); each one that does not is named
     with its reason. Those stopped by the weights the environment names (``given_weights_problem``, the weights
-    row's failure) are named together and the reason said once, not once per profile."""
+    row's failure) are named together and the reason said once, not once per profile. Those that load with the
+    entropy window their method's weights were trained with (``--set exploration.frontier.entropy_window_m=4``, the
+    weights row's note) are noted with it, not failed."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.learned.weights import given_weights_problem  # noqa: PLC0415
     from cso_runtime.run_profile import load_profile, profile_names  # noqa: PLC0415
 
     names = profile_names()
     problem = given_weights_problem()
+    windows = None if problem else _trained_windows()
     stand_in = "tcp/127.0.0.1:7447"  # a profile that joins a robot's router gets one: no flag of the user's to name
-    bad, by_weights = [], []
+    bad, by_weights, by_window = [], [], {}
     for name in names:
         try:
             load_profile(name, {}, connect=[stand_in])
         except ConfigError as exc:
             if problem and problem in str(exc):
                 by_weights.append(name)
+            elif (window := _loads_with_a_window(name, windows or [], stand_in)) is not None:
+                by_window[name] = window
             else:
                 bad.append(str(exc).replace(f" with --connect {stand_in}", "", 1))
     if bad or by_weights:
         said = ([f"{', '.join(by_weights)}: their method's weights: {problem}"] if by_weights else []) + bad
         raise ValueError(f"{len(bad) + len(by_weights)} of {len(names)} profiles do not load: " + "; ".join(said))
-    return f"{len(names)} profiles valid: {', '.join(names)}"
+    noted = "".join(
+        f"; {', '.join(n for n, w in by_window.items() if w == window)} run their method's weights (the weights row) with"
+        f" --set exploration.frontier.entropy_window_m={window:g}, not with their own window (not a failure)"
+        for window in sorted(set(by_window.values()))
+    )
+    return f"{len(names)} profiles valid: {', '.join(names)}{noted}"
+
+
+def _loads_with_a_window(name: str, windows: list[float], stand_in: str) -> float | None:
+    """The first of ``windows`` (``_trained_windows``) with which profile ``name`` loads; None for none."""
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.run_profile import load_profile  # noqa: PLC0415
+
+    for window in windows:
+        try:
+            load_profile(name, {}, connect=[stand_in], settings={"exploration.frontier.entropy_window_m": window})
+        except ConfigError:
+            continue
+        return window
+    return None
 
 
 def check_runs_folder(runs_dir: Path) -> str:

@@ -1866,7 +1866,8 @@ def run_foreground(
     launcher = Launcher(profile, data, run_dir, _record_path(run_dir, record or animate), animate, stop_event=stop_event)
     # The launcher's own lines go to logs/launcher.log too, as a detached launcher's do (its stdout).
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
-    handler = logging.FileHandler(run_dir / "logs" / "launcher.log", encoding="utf-8")
+    # A path of bytes that are no UTF-8 (the scene's) is escaped, as stderr writes it: a strict file raised at every line.
+    handler = logging.FileHandler(run_dir / "logs" / "launcher.log", encoding="utf-8", errors="backslashreplace")
     handler.setFormatter(logging.Formatter(LOG_FORMAT))
     root = logging.getLogger()
     root.addHandler(handler)

@@ -21,7 +21,7 @@ from typing import Any, ClassVar, TypeVar, overload
 import msgpack
 import numpy as np
 
-from cso_runtime.config import MAX_EPISODE_STEPS, ConfigError
+from cso_runtime.config import MAX_EPISODE_STEPS, ConfigError, utf8_text
 from cso_runtime.frontiers import FrontierCluster
 from cso_runtime.geometry import (
     MAP_FRAME_ORIGIN,
@@ -308,9 +308,8 @@ def clipped(text: str, max_chars: int = MAX_TEXT_CHARS) -> str:
     """``text`` as it is when it fits ``max_chars``, else its start and an ellipsis in ``max_chars`` characters (the
     decoder counts characters too, ``_str``, so a multi-byte character is never cut). A character UTF-8 cannot carry (a
     lone surrogate: a file name of undecodable bytes, ``os.fsdecode``'s) is escaped first (``\\udcff``): the message
-    would not encode at all, and a status that raised went unanswered."""
-    if not text.isascii():
-        text = text.encode("utf-8", "backslashreplace").decode("utf-8")
+    would not encode at all, and a status that raised went unanswered (``config.utf8_text``)."""
+    text = utf8_text(text)
     return text if len(text) <= max_chars else text[: max_chars - 1] + "…"
 
 

@@ -114,8 +114,10 @@ def keep_mode_and_owner(earlier: Path, partial: Path) -> None:
 
 
 def write_text_atomic(path: Path | str, text: str) -> None:
-    """``text`` (UTF-8) as the whole of ``path`` (``write_whole``)."""
-    write_whole(path, lambda partial: partial.write_text(text, encoding="utf-8"))
+    """``text`` (UTF-8) as the whole of ``path`` (``write_whole``). A character UTF-8 cannot carry (a lone surrogate: a
+    path of bytes that are no UTF-8, ``os.fsdecode``'s) is written escaped, ``\\udcff``, as ``config.utf8_text`` does,
+    where it raised and left a run without its report."""
+    write_whole(path, lambda partial: partial.write_text(text, encoding="utf-8", errors="backslashreplace"))
 
 
 def write_npz_whole(path: Path | str, arrays: Mapping[str, Any]) -> None:

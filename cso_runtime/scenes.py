@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cso_runtime.config import Bound, finite_number, with_nearest
+from cso_runtime.config import Bound, finite_number, utf8_text, with_nearest
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, GridGeometry, Pose2D, compose_pose, relative_pose, wrap_angle_rad
 
 FREE_RGB = (195, 195, 194)
@@ -165,6 +165,13 @@ OTHER_PLANS_HINT = (
 """What a PNG that is no Dungeon plan takes instead (a floor plan of the user's own building, say)."""
 
 
+def scene_name(path: Path) -> str:
+    """The name of the scene in file ``path``: its stem, which every table, message, log and file of a run carries, so a
+    stem of bytes that are no UTF-8 is escaped (``img_\\udcff``, ``config.utf8_text``): its lone surrogates made every
+    ``episode_status`` fail to encode, MuJoCo refuse the model and episodes.csv fail to write."""
+    return utf8_text(path.stem)
+
+
 def floor_plan_from_rgb(name: str, rgb: np.ndarray, resolution_m: float, start_yaw_rad: float = 0.0, source: str = "") -> FloorPlan:
     """Decode a Dungeon-style image: free (195,195,194), wall (127,127,127), start square (255,216,0): one marker (its
     pixels 8-connected), whose centre is the start pose; a SceneError for none or several."""
@@ -210,7 +217,7 @@ def load_floor_plan(path: str | Path, resolution_m: float = 0.1, start_yaw_rad: 
         raise SceneError(str(exc)) from None
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
         raise SceneError(f"{p}: not a readable image ({exc})") from None
-    return floor_plan_from_rgb(p.stem, rgb, resolution_m, start_yaw_rad, source=str(p))
+    return floor_plan_from_rgb(scene_name(p), rgb, resolution_m, start_yaw_rad, source=str(p))
 
 
 MAP_SUFFIXES = (".yaml", ".yml")
@@ -267,7 +274,7 @@ def load_map_scene(path: str | Path) -> FloorPlan:
         largest = labels == 1 + int(np.argmax(ndimage.sum_labels(free, labels, index=np.arange(1, n + 1))))
         centre_iy, centre_ix = map(int, np.unravel_index(int(np.argmax(ndimage.distance_transform_edt(largest))), free.shape))
         pose = Pose2D((centre_ix + 0.5) * res, (centre_iy + 0.5) * res, 0.0)
-    return FloorPlan(p.stem, free, res, pose, source=str(p), map_origin=map_origin)
+    return FloorPlan(scene_name(p), free, res, pose, source=str(p), map_origin=map_origin)
 
 
 def _natural_key(p: Path) -> tuple:
@@ -349,5 +356,5 @@ def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.
         else:
             said = with_nearest(spec, ["builtin"], shown=repr(spec)) if not p.exists() else repr(spec)
             raise SceneError(f"scene spec {said} is not a folder, a .png, a map .yaml, 'builtin' or generated:SCALE:N:SEED")
-        refs = [SceneRef(f.stem, path=str(f), resolution_m=resolution_m) for f in files]
+        refs = [SceneRef(scene_name(f), path=str(f), resolution_m=resolution_m) for f in files]
     return refs[:limit] if limit is not None else refs

@@ -99,3 +99,39 @@ def test_the_profiles_check_says_the_weights_problem_once_not_once_per_profile(t
     assert why.count(problem) == 1, why
     assert why.startswith("3 of 4 profiles do not load: limo-ros2, sim: their method's weights: " + problem), why
     assert "configs/profiles/mine.yaml: a profile must list at least one service" in why
+
+
+def test_weights_trained_with_another_entropy_window_are_noted_with_the_set_that_runs_them_not_failed(tmp_path, monkeypatch):
+    """``CSO_WEIGHTS_DIR`` of a ``train --set entropy_window_m=4`` run: the weights row failed ("... trained with
+    frontier.entropy_window_m 4 m, this run's is 2 m") though doctor has no run, and the profiles row repeated it for
+    each profile of a learned method. The weights load as a run with their window loads them; both rows say what they
+    compared with (the default config's 2 m, the profile's own) and the ``--set`` a run takes, and pass. A file that does not load still fails."""
+    import dataclasses
+
+    import torch
+
+    from cso_runtime.learned.ppo import Args, build_model, save_weights
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+    from tests.conftest import unset_weights_env
+
+    unset_weights_env(monkeypatch)
+    monkeypatch.chdir(tmp_path)  # no profiles of the user's
+    wide = Args(variant="cso", entropy_window_m=4.0, out_dir=str(tmp_path / "wide"))
+    save_weights(tmp_path / "wide", build_model(wide, torch.device("cpu")), wide, {"ppo_decisions": 0, "args": dataclasses.asdict(wide)})
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(tmp_path / "wide"))
+
+    said = doctor.check_weights()
+    assert said.startswith(f"1 weights files load ({tmp_path / 'wide'}): cso.pt; note, not a failure"), said
+    assert "trained with frontier.entropy_window_m 4 m, the default config's is 2 m" in said and "this run's" not in said
+    assert "run with --set frontier.entropy_window_m=4 (up: --set exploration.frontier.entropy_window_m=4)" in said
+    profiles = doctor.check_profiles()
+    assert profiles == (
+        "3 profiles valid: limo-ros2, lockstep, sim; limo-ros2, sim run their method's weights (the weights row) with"
+        " --set exploration.frontier.entropy_window_m=4, not with their own window (not a failure)"
+    ), profiles
+
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / "cso.pt").write_bytes(b"not a checkpoint")
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(tmp_path / "broken"))
+    results = {r.name: r for r in doctor.run_checks(tmp_path, only=[("weights", doctor.check_weights)])}
+    assert not results["weights"].ok and "this run's" not in results["weights"].detail, results["weights"].detail

@@ -713,6 +713,36 @@ def test_up_and_eval_refuse_an_existing_folder_they_cannot_write_in(tmp_path):
         (tmp_path / "read_only").chmod(0o755)
 
 
+def test_a_scene_file_named_in_bytes_that_are_no_utf8_runs_under_up_and_eval(tmp_path):
+    """A plan file named ``img_\\xff.png`` (bytes that are no UTF-8; Python reads the name with a lone surrogate): the
+    sim raised on each ``episode_status`` it encoded and was restarted until given up (``up`` exit 1, no results, a
+    "Logging error" traceback for the launcher's first line), and ``eval`` ran its episodes and ended in a traceback
+    writing episodes.csv. Both now run: the scene is named ``img_\\udcff`` in every file, the path escaped as written."""
+    from cso_runtime.scenes import builtin_scene_dir
+
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    png = maps / os.fsdecode(b"img_\xff.png")
+    try:
+        shutil.copyfile(builtin_scene_dir() / "img_1.png", png)
+    except OSError:  # a file system that takes only UTF-8 names (macOS)
+        pytest.skip("this file system refuses a file name of bytes that are no UTF-8")
+    runs = tmp_path / "runs"
+    r = cli("up", "--profile", "lockstep", "--scene", str(png), "--no-live", "--set", "exploration.episode.max_steps=5", "--runs-dir", str(runs), cwd=tmp_path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr and "Logging error" not in r.stderr, r.stderr[-3000:]
+    (run_dir,) = runs.glob("*lockstep*")
+    with (run_dir / "episodes.csv").open(newline="", encoding="utf-8") as fh:
+        assert [row["map"] for row in csv.DictReader(fh)] == ["img_\\udcff"]
+    assert "img_\\udcff.png" in (run_dir / "report.html").read_text(encoding="utf-8")
+    assert "img_\\udcff.png" in (run_dir / "logs" / "launcher.log").read_text(encoding="utf-8")
+
+    r = cli("eval", "--maps", str(maps), "--max-steps", "5", "--out", str(tmp_path / "eval"), cwd=tmp_path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr[-3000:]
+    with (tmp_path / "eval" / "episodes.csv").open(newline="", encoding="utf-8") as fh:
+        assert [row["map"] for row in csv.DictReader(fh)] == ["img_\\udcff"]
+    assert json.loads((tmp_path / "eval" / "summary.json").read_text(encoding="utf-8"))["methods"]["greedy-dist"]["episodes"] == 1
+
+
 def test_up_that_cannot_reach_the_router_to_join_says_so_and_starts_nothing(tmp_path):
     """``up --connect`` to a router that is not there (a robot that is off, another run's router gone): the embedded
     router retried in the background and the run started alone, exit 0, with no word of it. Now the no-session error

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import zlib
 
@@ -30,6 +31,7 @@ from cso_runtime.scenes import (
     builtin_scene_dir,
     floor_plan_from_rgb,
     load_floor_plan,
+    load_map_scene,
     resolve_scenes,
     scale_of,
 )
@@ -166,6 +168,31 @@ def _tiny_plan_pixels() -> np.ndarray:
     px[1:3, 3:5] = START_RGB  # image rows 1-2 (top), columns 3-4
     px[6, 2] = WALL_RGB  # image row 6: grid row 1
     return px
+
+
+def test_a_plan_whose_file_name_is_no_utf8_is_named_so_every_encoder_takes_it(tmp_path):
+    """A file name of bytes that are no UTF-8 (``img_\\xff.png``) is, as Python reads it (``os.fsdecode``), a str with a
+    lone surrogate: as the scene's name, every ``episode_status`` failed to encode (the sim exited at its first step and
+    was restarted until given up), MuJoCo refused the model and episodes.csv failed to write. The name is escaped where
+    it is made, whichever way the plan is given (a folder, the file, a map YAML); the file is read by its own path."""
+    from cso_runtime.messages import EpisodeStatusMsg, decode, encode
+
+    png, yaml_map = tmp_path / os.fsdecode(b"img_\xff.png"), tmp_path / "maps" / os.fsdecode(b"m\xff.yaml")
+    try:
+        _write_png(png, _tiny_plan_pixels())
+    except OSError:  # a file system that takes only UTF-8 names (macOS): no such file to read
+        pytest.skip("this file system refuses a file name of bytes that are no UTF-8")
+    yaml_map.parent.mkdir()
+    save_map(tmp_path / "maps" / "ok.yaml", np.zeros((6, 6), dtype=np.int8), GridGeometry(0.1, (6, 6)))
+    (tmp_path / "maps" / "ok.yaml").rename(yaml_map)  # its image is ok.png, named in the YAML
+    (ref,) = resolve_scenes(str(tmp_path))
+    (by_file,) = resolve_scenes(str(png))
+    (map_ref,) = resolve_scenes(str(yaml_map.parent))
+    names = [ref.name, ref.load().name, by_file.name, load_floor_plan(png).name]
+    assert names == ["img_\\udcff"] * 4 and ref.path == str(png)
+    assert map_ref.name == load_map_scene(yaml_map).name == "m\\udcff"
+    said = decode(encode(EpisodeStatusMsg("exploring", 1, scene=ref.load().name)), EpisodeStatusMsg)
+    assert said.scene == "img_\\udcff"
 
 
 def test_png_colours_start_and_y_flip(tmp_path):

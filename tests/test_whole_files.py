@@ -281,3 +281,17 @@ def test_a_live_writer_is_not_taken_for_a_stranger_where_proc_uptime_is_the_cont
     finally:
         writer.kill()
         writer.wait()
+
+
+def test_a_text_file_naming_a_path_of_bytes_that_are_no_utf8_is_written_with_it_escaped(tmp_path):
+    """A run's report names its scene's path, which may hold bytes that are no UTF-8 (a lone surrogate as Python reads
+    it, ``os.fsdecode``): the write raised, and ``up`` ended with no report.html, ``eval`` with a traceback and no
+    episodes.csv. The surrogate is written escaped (``\\udcff``), as ``config.utf8_text`` writes a scene's name."""
+    import os
+
+    from cso_runtime.outputs import write_text_atomic
+
+    report = tmp_path / "report.html"
+    write_text_atomic(report, "scene " + os.fsdecode(b"/maps/img_\xff.png") + " é")
+    assert report.read_text(encoding="utf-8") == "scene /maps/img_\\udcff.png é"
+    assert [p.name for p in tmp_path.iterdir()] == ["report.html"]

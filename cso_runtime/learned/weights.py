@@ -358,11 +358,12 @@ class InputMismatch:
     run: float
     refused: bool
 
-    def said(self, name: str, path: Path) -> str:
-        """One line naming the parameter, both values and how to proceed."""
+    def said(self, name: str, path: Path, against: str = "this run's") -> str:
+        """One line naming the parameter, both values and how to proceed; ``against``: whose setting the weights' is
+        compared with (``doctor``, which has no run: "the default config's")."""
         trained, run = setting_text(self.trained), setting_text(self.run)
         matching = f"--set frontier.{self.key}={trained} (up: --set exploration.frontier.{self.key}={trained})"
-        head = f"the weights of {name} ({path}) were trained with frontier.{self.key} {trained} m, this run's is {run} m"
+        head = f"the weights of {name} ({path}) were trained with frontier.{self.key} {trained} m, {against} is {run} m"
         if self.key == "entropy_window_m":
             return (
                 f"{head}: the network's entropy input would be about {self.run / self.trained:g} times what it learned on;"
@@ -403,21 +404,24 @@ class InputVerdict:
         return InputVerdict(self.refused + other.refused, self.warned + other.warned)
 
 
-def input_verdict(name: str, path: Path, trained: FrontierConfig, run: FrontierConfig | None, graph_use_entropy: bool = True) -> InputVerdict:
+def input_verdict(
+    name: str, path: Path, trained: FrontierConfig, run: FrontierConfig | None, graph_use_entropy: bool = True, against: str = "this run's"
+) -> InputVerdict:
     """The one decision of what loading the weights of method ``name`` at ``path``, trained with the frontier settings
     ``trained`` (``checkpoint_frontier``), with the run's ``run`` (None: ``FrontierConfig``'s defaults, what
     ``ObservationBuilder()`` builds with) refuses and what it warns of (``input_mismatches``, ``INPUT_CHECKS``), with
     the messages (``InputMismatch.said``). The entropy window counts only for a variant that reads I
     (``policies.VARIANTS``; ``graph_use_entropy``, its graph's own switch, for a name that is no variant). Every load
     (``registry._model_for``), ``up``'s check before anything starts (``recorded_input_refusal``) and
-    benchmarks/eval_ensemble.py's members decide with it."""
+    benchmarks/eval_ensemble.py's members decide with it; ``doctor`` too, with ``against`` naming the settings it compares
+    with (``InputMismatch.said``)."""
     from cso_runtime.policies import VARIANTS  # noqa: PLC0415 - no torch; policies imports this module
 
     use_entropy = VARIANTS[name].use_entropy if name in VARIANTS else graph_use_entropy
     mismatches = input_mismatches(trained, run or FrontierConfig(), use_entropy)
     return InputVerdict(
-        refused=tuple(m.said(name, path) for m in mismatches if m.refused),
-        warned=tuple(m.said(name, path) for m in mismatches if not m.refused),
+        refused=tuple(m.said(name, path, against) for m in mismatches if m.refused),
+        warned=tuple(m.said(name, path, against) for m in mismatches if not m.refused),
     )
 
 
