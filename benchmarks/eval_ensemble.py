@@ -7,7 +7,8 @@ Tried on the development set (docs/experiments/learned-policy.md, "Choosing on a
         --member benchmarks/results/cluster_size_prior/train_seed3/cso.pt -- --method cso --lidar-fov 360 --workers 1 --maps runs/dev/plans \
         --m-per-px 0.05 --out runs/dev/cso-ens3_0.05
 
-Arguments after ``--`` go to ``cso-runtime eval`` (keep ``--workers 1``: the ensemble is set up in this process).
+Arguments after ``--`` go to ``cso-runtime eval``; ``--workers`` other than 1 is refused: the ensemble is set up in this
+process, and eval's spawned workers would run the weights served instead.
 """
 
 from __future__ import annotations
@@ -45,12 +46,27 @@ class EnsemblePolicy(registry.LearnedPolicy):
         return p.squeeze(0).cpu().numpy()
 
 
+def _workers_asked(eval_args: list[str]) -> str | None:
+    """The value of the last ``--workers`` among eval's arguments (``--workers N`` or ``--workers=N``); None: not given."""
+    value = None
+    for i, arg in enumerate(eval_args):
+        if arg == "--workers" and i + 1 < len(eval_args):
+            value = eval_args[i + 1]
+        elif arg.startswith("--workers="):
+            value = arg.split("=", 1)[1]
+    return value
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     ours, eval_args = (argv[: argv.index("--")], argv[argv.index("--") + 1 :]) if "--" in argv else (argv, [])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--member", action="append", required=True, help="a checkpoint (.pt) of the ensemble; repeat")
     args = ap.parse_args(ours)
+    if (workers := _workers_asked(eval_args)) not in (None, "1"):
+        # eval's worker processes are spawned: they import the registry afresh and would run the weights served, not
+        # the ensemble set up here, under the ensemble's name and without a word
+        raise SystemExit(f"--workers {workers}: the ensemble is set up in this process, which eval's workers are not; give --workers 1")
     loaded = [registry.load_checkpoint(path) for path in args.member]
     members = [model for model, _, _ in loaded]
     if len({str(graph) for _, graph, _ in loaded}) != 1:

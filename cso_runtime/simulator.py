@@ -266,7 +266,8 @@ def mujoco_config(
     physics steps, and walls must stop it at its top speed (``check_walls_hold``: a slower top speed is suggested only
     where ``exploration``, the whole config ``robot`` is of, takes it). Raises ConfigError naming ``where``, the robot's
     keys where the caller's user sets them (``mount.robot_key``) and, for another mount, how the caller's user sets the
-    sensor's (``mount``; None: the caller fixes it, the key can only be left out)."""
+    sensor's (``mount``; None: the caller fixes it, the key can only be left out, and the robot, whose top speed is then
+    suggested nowhere)."""
     from robot_sim.config import MujocoSimConfig, check_walls_hold, lidar_mount_problem, whole_steps  # noqa: PLC0415 - MuJoCo only when asked for
 
     data = dict(overrides or {})
@@ -277,8 +278,8 @@ def mujoco_config(
     config = from_dict(MujocoSimConfig, data, where=where)
     if robot is not None:
         try:
-            robot_key = mount.robot_key if mount is not None else MountSetting.robot_key
-            whole_steps(robot.control_period_s, config.timestep_s, f"{robot_key}.control_period_s")
+            robot_key = mount.robot_key if mount is not None else None  # None: the caller fixes the robot too (scenes --mjcf: the LIMO's own)
+            whole_steps(robot.control_period_s, config.timestep_s, f"{robot_key or MountSetting.robot_key}.control_period_s")
             check_walls_hold(config, robot, robot_key, exploration)  # not the body through walls too soft for its top speed, or between two physics steps
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None

@@ -388,7 +388,10 @@ def guarded_callback(callback: Callable[..., None], failed: Callable[[str], None
     made its querier wait out its whole timeout. The one guard of the services (``Service.guarded``) and the
     launcher's (``Launcher._guarded``). A ``BaseException`` that is no ``Exception`` (a ``SystemExit`` or
     ``KeyboardInterrupt`` raised in it) is counted and answered alike, then raised on: let through first, it was in no
-    count, its query got no error, and Zenoh's own log record of it kept the query (its querier waited out its timeout)."""
+    count, its query got no error, and Zenoh's own log record of it kept the query (its querier waited out its timeout).
+    Raised on in a Zenoh callback it stops nothing: zenoh-python (1.10) runs callbacks on a thread of its own, catches
+    any ``BaseException`` there, logs it (``zenoh.handlers``, "callback error") and goes on calling; the process does
+    not exit (a signal's ``KeyboardInterrupt`` only ever comes on the main thread)."""
     said = callback_name(callback) if name is None else name
 
     def call(*args: Any) -> None:

@@ -43,14 +43,17 @@ def whole_steps(duration_s: float, timestep_s: float, what: str) -> int:
     return n
 
 
-def through_wall_problem(sim: MujocoSimConfig, robot: RobotConfig, robot_key: str = "robot", exploration: ExplorationConfig | None = None) -> str | None:
+def through_wall_problem(sim: MujocoSimConfig, robot: RobotConfig, robot_key: str | None = "robot", exploration: ExplorationConfig | None = None) -> str | None:
     """Why walls may not stop ``robot`` at its top speed under ``sim`` (``MAX_SINK_OF_SIDE``: it travels too far within
     the contact's time constant, and so within a physics step), with values that work, or None. Checked where the
     MuJoCo LIMO's parameters meet the robot's (``simulator.mujoco_config``, ``MujocoSimulator``), before anything starts.
     The robot's keys are named under ``robot_key``, where the caller's user sets them (``simulator.MountSetting``: a
     profile's ``exploration.robot``); a top speed is suggested only where the whole exploration config ``robot`` is of
     takes it (``exploration``; None: ``ExplorationConfig``'s other sections), not one below the planner's
-    ``backup_speed_mps``, which it refuses."""
+    ``backup_speed_mps``, which it refuses; none where ``robot_key`` is None (the caller fixes the robot: ``scenes
+    --mjcf``'s LIMO, its keys named ``robot``)."""
+    fixed = robot_key is None
+    robot_key = robot_key or "robot"
     side_m = min(robot.length_m, robot.width_m)
     most_m = MAX_SINK_OF_SIDE * side_m
     v = robot.max_linear_mps
@@ -65,7 +68,9 @@ def through_wall_problem(sim: MujocoSimConfig, robot: RobotConfig, robot_key: st
         finer = f" with timestep_s {step:.6g} s or finer ({whole})" if step else " with a finer timestep_s"
     slowest = float(f"{most_m / sim.contact_time_constant_s:.6g}")  # as said, as softest_s
     contact = f"contact_time_constant_s {softest_s:.6g} s or less{finer}"
-    if _top_speed_taken(robot, slowest, exploration):
+    if fixed:  # no setting of the robot's to change: the contact (or the step) is the way out
+        use = f"Use {contact}"
+    elif _top_speed_taken(robot, slowest, exploration):
         use = f"Use {robot_key}.max_linear_mps {slowest:.6g} m/s or less, or {contact}"
     else:  # a top speed slow enough for these walls is one the rest of the config refuses (the planner's back-up speed)
         use = f"Use {contact} ({robot_key}.max_linear_mps {slowest:.6g} m/s, slow enough for walls this soft, is too slow for the exploration config)"
@@ -105,7 +110,7 @@ def _coarsest_whole_timestep(sim: MujocoSimConfig, robot: RobotConfig, contact_s
     return None
 
 
-def check_walls_hold(sim: MujocoSimConfig, robot: RobotConfig, robot_key: str = "robot", exploration: ExplorationConfig | None = None) -> None:
+def check_walls_hold(sim: MujocoSimConfig, robot: RobotConfig, robot_key: str | None = "robot", exploration: ExplorationConfig | None = None) -> None:
     """``through_wall_problem`` as a ConfigError."""
     if (problem := through_wall_problem(sim, robot, robot_key, exploration)) is not None:
         raise ConfigError(problem)

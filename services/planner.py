@@ -490,7 +490,7 @@ class PlannerService(Service):
                     result = self.planner.update(odom.pose, odom.stamp_s, scan.scan)
                 cmd = result.command
                 if result.status == PlannerStatus.BLOCKED and self.planner.blocked_why:
-                    reason = f"blocked: {self.planner.blocked_why}"  # no path at all (off the map, unreachable), not a path cut later
+                    reason = f"blocked: {self.planner.blocked_why}"  # no path at all (off the map, on a cell not traversable, unreachable), not a path cut later
                 elif result.status != PlannerStatus.FOLLOWING:
                     reason = result.status.value
                 elif result.recovery:

@@ -3321,3 +3321,28 @@ def test_a_crafted_checkpoint_header_costs_no_memory_nor_a_crash(tmp_path):
     huge = 10**400
     assert recorded_frontier(archive("huge", pickle.dumps({"graph": {"entropy_window_m": huge}}, protocol=2))) is None
     assert checkpoint_frontier({"frontier": {"entropy_window_m": huge, "min_cluster_size_m": 0.5}}, 2.0) == FrontierConfig(min_cluster_size_m=0.5, entropy_window_m=2.0)
+
+
+@pytest.mark.parametrize("workers", [["--workers", "2"], ["--workers=3"]])
+def test_ensemble_of_benchmarks_refuses_eval_workers_that_would_run_the_served_weights(tmp_path, monkeypatch, workers):
+    """benchmarks/eval_ensemble.py sets the ensemble up in its own process (``registry.make_learned_policy`` replaced);
+    eval's ``--workers`` above 1 runs the episodes in spawned processes that import the registry afresh: they ran the
+    weights served, not the ensemble, under the ensemble's run and without a word (its docstring only asked to keep
+    ``--workers 1``). It is refused before eval runs."""
+    from cso_runtime import cli
+    from cso_runtime.learned import registry
+
+    unset_weights_env(monkeypatch)
+    monkeypatch.setattr(registry, "make_learned_policy", registry.make_learned_policy)
+    monkeypatch.setattr(registry, "check_weights", registry.check_weights)
+    ran: list[list[str]] = []
+    monkeypatch.setattr(cli, "app", ran.append)
+    spec = importlib.util.spec_from_file_location("eval_ensemble", Path(__file__).parents[1] / "benchmarks" / "eval_ensemble.py")
+    ensemble = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ensemble)
+    member = str(weights_path("cso", SensorConfig.preset("lidar", 360.0)))
+    with pytest.raises(SystemExit, match="give --workers 1"):
+        ensemble.main(["--member", member, "--", "--method", "cso", *workers, "--out", str(tmp_path / "out")])
+    assert ran == []
+    assert ensemble.main(["--member", member, "--", "--method", "cso", "--workers", "1", "--out", str(tmp_path / "out")]) == 0
+    assert ran == [["eval", "--method", "cso", "--workers", "1", "--out", str(tmp_path / "out")]]

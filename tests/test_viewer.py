@@ -408,3 +408,24 @@ def test_the_world_file_says_which_frame_a_map_yamls_scene_is_in(tmp_path):
     assert "not the map YAML's map frame, where that corner is at its origin (-10, -5) m, yaw 0 rad" in header
     plain = write_mujoco_world(tmp_path / "g.xml", generate_floor_plan("small", 0)).read_text(encoding="utf-8")
     assert "x and y are in the plan's map frame" in plain.split("-->")[0]
+
+
+def test_scenes_refusal_of_walls_too_soft_suggests_no_robot_key_it_has_not(tmp_path):
+    """``scenes --mjcf --sim-config FILE`` writes its worlds with the LIMO's own robot (``RobotConfig()``): no key of it
+    sets the robot. Its refusal of walls too soft for the LIMO's top speed still said "Use robot.max_linear_mps 0.22
+    m/s or less", a key scenes does not take; the one way out it has is the contact in FILE, which it now names alone."""
+    import yaml
+
+    from robot_sim.config import through_wall_problem
+
+    config, out = tmp_path / "soft.yaml", tmp_path / "worlds"
+    config.write_text("contact_time_constant_s: 0.5\n")
+    result = CliRunner().invoke(app, ["scenes", "generated:small:1:0", "--mjcf", str(out), "--sim-config", str(config)])
+    said = " ".join(result.output.split())
+    assert result.exit_code == 2 and "pass through them" in said, result.output
+    assert "max_linear_mps 0.22" not in said and "Use contact_time_constant_s 0.11 s or less" in said, said
+    config.write_text(yaml.safe_dump({"contact_time_constant_s": 0.11}))  # the way out said, taken
+    result = CliRunner().invoke(app, ["scenes", "generated:small:1:0", "--mjcf", str(out), "--sim-config", str(config)])
+    assert result.exit_code == 0, result.output
+    # eval's config sets the robot: its refusal still names its top speed (tests/test_config.py, each way out of eval's)
+    assert "Use robot.max_linear_mps 0.22 m/s or less" in str(through_wall_problem(MujocoSimConfig(contact_time_constant_s=0.5), RobotConfig()))
