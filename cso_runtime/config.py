@@ -461,9 +461,10 @@ class PlannerConfig:
     stall_steps: int = 4
     """Nav2's BackUp recovery: when this many control periods in a row each moved the robot less than a
     quarter of what their commands asked (pinned on a wall's corner, which the MuJoCo LIMO can be after
-    sliding on from full speed), it backs straight up ``backup_distance_m`` before following on, a period at a
-    time and only while the map the path was planned on shows no obstacle in the strip behind the body
-    (``LocalPlanner`` stops a reverse command otherwise). A period that asked to drive is judged by its drive
+    sliding on from full speed), it backs straight up ``backup_distance_m`` before following on (as odometry and the
+    real time since it started count it, not control periods), and only while the map the path was planned on shows
+    no obstacle, unknown cell or map edge in what the body sweeps behind it (``LocalPlanner`` stops a reverse command
+    otherwise). A period that asked to drive is judged by its drive
     alone, whatever its turn did (how far it got along the headings the body had: a body pressed on a wall that
     slides along it counts only its share ahead); a turn in place by its turn. With a sensor narrower than
     ``face_goal_below_fov_deg`` (the depth camera) the cells the pinned body touches become obstacles of the

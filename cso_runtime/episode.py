@@ -293,7 +293,7 @@ class Explorer:
             self.terminated_by = TERMINATED_NO_FRONTIER
             self.ended_why = ended_no_frontier_why(obs, self.dead_frontier, self.config)
             return
-        status = self.planner.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_map(), occupied=obs.occupied)
+        status = self.planner.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_map(), occupied=obs.occupied, explored=obs.explored)
         if status == PlannerStatus.BLOCKED:
             self._mark_dead((goal.x_m, goal.y_m))
 

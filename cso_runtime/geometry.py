@@ -207,6 +207,45 @@ class GridGeometry:
         inside = (np.abs(c * dx + s * dy) <= 0.5 * length_m) & (np.abs(-s * dx + c * dy) <= 0.5 * width_m)
         return iy[inside], ix[inside]
 
+    def _cells_around(self, x_m: float, y_m: float, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Every cell (iy, ix) of the square of cells reaching ``reach_m`` round (x, y), on the grid or off it."""
+        low_iy, low_ix = map(int, self.world_to_cell(x_m - reach_m, y_m - reach_m))
+        high_iy, high_ix = map(int, self.world_to_cell(x_m + reach_m, y_m + reach_m))
+        iy, ix = np.mgrid[low_iy : high_iy + 1, low_ix : high_ix + 1]
+        return iy.ravel(), ix.ravel()
+
+    def cell_gap_m(self, iy: npt.ArrayLike, ix: npt.ArrayLike, x_m: float, y_m: float) -> np.ndarray:
+        """The distance from (x, y) to the nearest point of each cell (0 inside it)."""
+        x0 = self.origin_x_m + np.asarray(ix) * self.resolution_m
+        y0 = self.origin_y_m + np.asarray(iy) * self.resolution_m
+        dx = np.maximum(np.maximum(x0 - x_m, 0.0), x_m - (x0 + self.resolution_m))
+        dy = np.maximum(np.maximum(y0 - y_m, 0.0), y_m - (y0 + self.resolution_m))
+        return np.hypot(dx, dy)
+
+    def cells_overlapping_rectangle(self, centre: Pose2D, length_m: float, width_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Cells (iy, ix) whose squares share some area with the rectangle of ``cells_in_rectangle`` (a cell that
+        straddles its edge too, not only one whose centre lies inside), on the grid or off it (``in_bounds``): the
+        conservative rasterisation, for a check that must miss no obstacle. Exact (separating axes: the cells' and
+        the rectangle's); a cell that only touches the rectangle's edge does not count."""
+        half = 0.5 * self.resolution_m
+        iy, ix = self._cells_around(centre.x_m, centre.y_m, 0.5 * math.hypot(length_m, width_m) + half)
+        x_m, y_m = self.cell_to_world(iy, ix)
+        c, s = math.cos(centre.yaw_rad), math.sin(centre.yaw_rad)
+        dx, dy = x_m - centre.x_m, y_m - centre.y_m
+        cell_along = half * (abs(c) + abs(s))  # a cell's half extent along either of the rectangle's axes
+        apart = (np.abs(c * dx + s * dy) >= 0.5 * length_m + cell_along) | (np.abs(-s * dx + c * dy) >= 0.5 * width_m + cell_along)
+        box_x = 0.5 * (length_m * abs(c) + width_m * abs(s))  # the rectangle's half extents along the grid's axes
+        box_y = 0.5 * (length_m * abs(s) + width_m * abs(c))
+        apart |= (np.abs(dx) >= box_x + half) | (np.abs(dy) >= box_y + half)
+        return iy[~apart], ix[~apart]
+
+    def cells_overlapping_disc(self, x_m: float, y_m: float, radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Cells (iy, ix) whose squares share some area with the disc of ``radius_m`` round (x, y), on the grid or off
+        it (``in_bounds``); a cell that only touches its edge does not count."""
+        iy, ix = self._cells_around(x_m, y_m, radius_m)
+        inside = self.cell_gap_m(iy, ix, x_m, y_m) < radius_m
+        return iy[inside], ix[inside]
+
 
 MAX_RANGE_M = 1000.0
 """The longest ``range_max_m`` a scan may have: the mapper marches every no-return beam out to it, so a range_max of

@@ -833,9 +833,9 @@ def frontiers_reading(grids: tuple[str, ...] | None, clusters: bool = True) -> t
     return type(name, (FrontiersMsg,), {"READS_GRIDS": grids, "READS_CLUSTERS": clusters, "__doc__": frontiers_reading.__doc__})
 
 
-PlannerFrontiersMsg = frontiers_reading(("traversable", "occupied"), clusters=False)
+PlannerFrontiersMsg = frontiers_reading(("traversable", "occupied", "explored"), clusters=False)
 """A ``frontiers`` message as the planner reads it: the verdict and, on a decision, the grid it plans on
-and the obstacles it checks before reversing (with the pose and geometry). Two of the five grids and no
+and the obstacles and seen cells it checks before reversing (with the pose and geometry). Three of the five grids and no
 clusters, on the planner's network thread while a fast policy's goal may already be waiting behind it."""
 
 
@@ -1141,6 +1141,8 @@ class PlannerPlanMsg(Message):
         if f is not None:
             occupied = None if f.occupied is None else pack_array(np.asarray(f.occupied, dtype=bool), compress=True)
             free = {"geometry": _geometry_out(f.geometry), "traversable": pack_array(np.asarray(f.traversable, dtype=bool), compress=True), "occupied": occupied}
+            if f.explored is not None:
+                free["explored"] = pack_array(np.asarray(f.explored, dtype=bool), compress=True)
         path = pack_array(np.asarray(self.path_xy_m, dtype=np.float64).reshape(-1, 2))
         return {"step": self.step, "episode": self.episode, "path_xy_m": path, "free": free}
 
@@ -1156,7 +1158,8 @@ class PlannerPlanMsg(Message):
                 raise MessageError("planner_plan.free: expected a mapping or null")
             geometry = _geometry_in(f, w + ".free")
             occupied = None if _get(f, "occupied", w + ".free") is None else _grid_in(f, "occupied", w + ".free", geometry, "bool")
-            free = FreeSpace(_grid_in(f, "traversable", w + ".free", geometry, "bool"), geometry, occupied)
+            explored = None if f.get("explored") is None else _grid_in(f, "explored", w + ".free", geometry, "bool")  # optional: older planners send none
+            free = FreeSpace(_grid_in(f, "traversable", w + ".free", geometry, "bool"), geometry, occupied, explored)
         return cls(_int(b, "step", w), path, free, _int(b, "episode", w))
 
 
@@ -1202,8 +1205,14 @@ class PlannerStateMsg(Message):
             "status": f.status.value,
             "progress_index": f.progress_index,
             "progress_anchor": None if f.progress_anchor is None else list(f.progress_anchor),
-            "stall": {"last": last, "stalled_periods": f.stalled_periods, "backing_up": f.backing_up, "backups": f.backups, "last_started_now": f.last_started_now},
-            "recovery": {"recoveries_left": f.recoveries_left, "heading_rad": f.escape_heading_rad, "drive_left_m": f.escape_drive_left_m, "escape_periods": f.escape_periods, "escapes": f.escapes},
+            "stall": {
+                "last": last, "stalled_periods": f.stalled_periods, "backing_up": 0 if f.backing_up is None else 1, "backups": f.backups,
+                "last_started_now": f.last_started_now, "backup_from": None if f.backing_up is None else [*_pose_out(f.backing_up[0]), f.backing_up[1]],
+            },
+            "recovery": {
+                "recoveries_left": f.recoveries_left, "heading_rad": f.escape_heading_rad, "drive_left_m": f.escape_drive_left_m,
+                "escape_periods": f.escape_periods, "escapes": f.escapes, "started_s": f.escape_started_s,
+            },
             "replan_pending": f.replan_pending,
             "blocked_why": f.blocked_why,
             **({} if self.contacts is None else {"contacts": self.contacts}),
@@ -1232,13 +1241,25 @@ class PlannerStateMsg(Message):
             d = dict(zip(("pose", "t", "v", "w"), ([last[0], last[1], last[2]], *last[3:])))
             last = (_pose_in(d, "pose", ws + ".last"), _num(d, "t", ws + ".last"), VelocityCommand(_num(d, "v", ws + ".last", -100, 100), _num(d, "w", ws + ".last", -100, 100)))
         heading = None if _get(recovery, "heading_rad", wr) is None else _num(recovery, "heading_rad", wr, -10.0, 10.0)
+        # ``backup_from`` and ``started_s`` are optional (an older planner's state has neither, and counts its back-up
+        # in periods to go): a back-up or an escape running without them goes on as if started at ``last``.
+        backup_from = stall.get("backup_from")
+        backing_up: tuple[Pose2D, float] | None
+        if backup_from is not None:
+            if not isinstance(backup_from, list) or len(backup_from) != 4:
+                raise MessageError("planner_state.stall.backup_from: expected [x_m, y_m, yaw_rad, time_s] or null")
+            d = {"pose": backup_from[:3], "t": backup_from[3]}
+            backing_up = (_pose_in(d, "pose", ws + ".backup_from"), _num(d, "t", ws + ".backup_from"))
+        else:
+            backing_up = (last[0], last[1]) if _int(stall, "backing_up", ws) > 0 and last is not None else None
+        started_s = _num(recovery, "started_s", wr) if recovery.get("started_s") is not None else (last[1] if last is not None else 0.0)
         follow = FollowCheckpoint(
             PlannerStatus(_str(b, "status", w, PLANNER_FOLLOW_STATUSES)),
             _int(b, "progress_index", w),
             anchor,
             last,
             _int(stall, "stalled_periods", ws),
-            _int(stall, "backing_up", ws),
+            backing_up,
             _int(stall, "backups", ws),
             _bool(stall, "last_started_now", ws),
             _int(recovery, "recoveries_left", wr),
@@ -1248,6 +1269,7 @@ class PlannerStateMsg(Message):
             _int(recovery, "escapes", wr),
             _bool(b, "replan_pending", w),
             _str(b, "blocked_why", w),
+            started_s,
         )
         return cls(
             _int(b, "step", w), _int(b, "plan_step", w, lo=-1), _int(b, "goal_step", w, lo=-1), _bool(b, "no_frontier", w),

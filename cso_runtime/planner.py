@@ -55,8 +55,11 @@ ESCAPE_UNSEEN_MARGIN_RAD = math.radians(45.0)
 along the edge of the view would pass returns the sensor never saw."""
 ESCAPE_TURNED_RAD = 0.03
 """The recovery drives once its heading is within this of the open heading (and steers to hold it)."""
-ESCAPE_MAX_PERIODS = 40
-"""A recovery ends after this many control periods whatever happens (a turn the robot cannot make)."""
+ESCAPE_MAX_S = 10.0
+"""A recovery ends this long after it started whatever happens (a turn the robot cannot make): real time, as the
+commands' ``time_s`` says, not control periods (a real LIMO gets a command per scan, not per ``control_period_s``)."""
+TIME_EPS_S = 1e-6
+"""Times this close count as equal (lockstep times are sums of control periods)."""
 
 
 class PlannerStatus(str, Enum):
@@ -183,20 +186,37 @@ def path_blocked_ahead(path_ahead_xy_m: np.ndarray, pose: Pose2D, occupied: np.n
 @dataclass(frozen=True)
 class FreeSpace:
     """The traversable (inflated) grid a path was planned on, for line-of-sight checks, and the occupied
-    cells of that map, for the check behind the robot before it reverses."""
+    (and explored) cells of that map, for the check behind the robot before it reverses."""
 
     traversable: np.ndarray
     geometry: GridGeometry
     occupied: np.ndarray | None = None
     """None: not known, and reversing is not checked."""
+    explored: np.ndarray | None = None
+    """The cells that map has seen; None: not known (a plan from an older planner), and only occupied and off-map
+    cells stop a reverse."""
 
-    def behind_is_clear(self, pose: Pose2D, length_m: float, width_m: float, distance_m: float) -> bool:
-        """Whether no occupied cell lies in the strip that the robot's body (``length_m`` x ``width_m``,
-        centred on ``pose``) sweeps when it reverses ``distance_m`` straight back."""
+    def behind_is_clear(self, pose: Pose2D, length_m: float, width_m: float, distance_m: float, disc_radius_m: float | None = None) -> bool:
+        """Whether the body can reverse ``distance_m`` straight back: no cell that shares any area with what it sweeps
+        behind it is occupied, unknown (as planning never enters unknown cells, Nav2's ``allow_unknown: false``) or off
+        the map. The box (``length_m`` x ``width_m``, centred on ``pose``) sweeps the strip behind its rear edge; a
+        disc (``disc_radius_m``, the 2D simulator's body) its rear half's sweep: the strip of its diameter from its
+        centre back and the disc where it ends (a cell already touching the disc's rear half is in the way too)."""
         if self.occupied is None or distance_m <= 0:
             return True
-        strip = pose.compose_offset(-0.5 * (length_m + distance_m))
-        iy, ix = self.geometry.cells_in_rectangle(strip, distance_m, width_m)
+        g = self.geometry
+        if disc_radius_m is None:
+            iy, ix = g.cells_overlapping_rectangle(pose.compose_offset(-0.5 * (length_m + distance_m)), distance_m, width_m)
+        else:
+            end = pose.compose_offset(-distance_m)
+            strip = g.cells_overlapping_rectangle(pose.compose_offset(-0.5 * distance_m), distance_m, 2.0 * disc_radius_m)
+            disc = g.cells_overlapping_disc(end.x_m, end.y_m, disc_radius_m)
+            iy, ix = np.concatenate([strip[0], disc[0]]), np.concatenate([strip[1], disc[1]])
+        on_map = g.in_bounds(iy, ix)
+        if not on_map.all():
+            return False
+        if self.explored is not None and not self.explored[iy, ix].all():
+            return False
         return not bool(self.occupied[iy, ix].any())
 
     def line_is_free(self, a_xy_m: np.ndarray, b_xy_m: np.ndarray) -> bool:
@@ -424,16 +444,20 @@ def driven_along_heading_m(last_pose: Pose2D, pose: Pose2D, linear_mps: float) -
 class StallRecovery:
     """Nav2's BackUp recovery for a robot that its commands no longer move: ``stall_steps`` control periods
     in a row that each achieved less than ``STALL_ACHIEVED_FRACTION`` of what they asked (the robot is
-    pinned on a wall's corner) start a straight back-up of ``backup_distance_m``. The pure-pursuit
+    pinned on a wall's corner) start a straight back-up of ``backup_distance_m``, which ends once odometry says the
+    robot got that far back from where it started, or once the time it takes at ``backup_speed_mps`` has passed
+    (a robot that cannot move back): real time and distance, not control periods, so that a robot commanded at
+    another rate (the real LIMO, once per scan) backs up as far. In lockstep both end it after
+    ``ceil(backup_distance_m / (backup_speed_mps * control_period_s))`` periods, as before. The pure-pursuit
     follower alone keeps pushing a pinned robot into the wall: its sweep sees the wall a few centimetres
     ahead but not the corner that holds the body. A period that asked to drive is judged by its drive: pinned
     by its side on a wall outside the depth camera's view, the robot still turns as pure pursuit asks, and
     counting those turns as movement kept the back-up from ever starting. Nor does a drive count what went
     sideways: the MuJoCo LIMO pressed on a wall can slide along it at a third of the asked speed."""
 
-    def __init__(self, config: PlannerConfig, control_period_s: float) -> None:
+    def __init__(self, config: PlannerConfig) -> None:
         self.config = config
-        self.backup_periods = math.ceil(config.backup_distance_m / (config.backup_speed_mps * control_period_s) - 1e-9)
+        self.backup_duration_s = config.backup_distance_m / config.backup_speed_mps
         self.backups = 0
         """Back-ups started in this planner's life (the planner service logs each)."""
         self.last_started_now = False
@@ -444,8 +468,8 @@ class StallRecovery:
         self.last: tuple[Pose2D, float, VelocityCommand] | None = None
         """(pose, time_s, command) of the last control period."""
         self.stalled_periods = 0
-        self.backing_up = 0
-        """Control periods of back-up still to go."""
+        self.backing_up: tuple[Pose2D, float] | None = None
+        """(pose, time_s) where and when the running back-up started; None when none runs."""
 
     def state(self) -> tuple:
         """What a control period changes, for ``LocalPlanner.follow_state``."""
@@ -475,28 +499,34 @@ class StallRecovery:
         if self.config.stall_steps <= 0:
             return None
         self.stalled_periods = self.stalled_periods + 1 if self._stalled(pose, time_s) else 0
-        if self.backing_up == 0 and self.stalled_periods >= self.config.stall_steps:
-            self._start(now=False)
-        return self._backing_up()
+        running = self._backing_up(pose, time_s)
+        if running is not None or self.stalled_periods < self.config.stall_steps:
+            return running
+        self._start(pose, time_s, now=False)
+        return self._backing_up(pose, time_s)
 
-    def back_up_now(self) -> VelocityCommand | None:
+    def back_up_now(self, pose: Pose2D, time_s: float) -> VelocityCommand | None:
         """Start a back-up now, whatever the last periods did (``LocalPlanner`` found the body blocked by a return its
         map has not got); its first period's command, or None when the recovery is off."""
         if self.config.stall_steps <= 0:
             return None
-        self._start(now=True)
-        return self._backing_up()
+        self._start(pose, time_s, now=True)
+        return self._backing_up(pose, time_s)
 
-    def _start(self, now: bool) -> None:
-        self.backing_up = self.backup_periods
+    def _start(self, pose: Pose2D, time_s: float, now: bool) -> None:
+        self.backing_up = (pose, time_s)
         self.backups += 1
         self.stalled_periods = 0
         self.last_started_now = now
 
-    def _backing_up(self) -> VelocityCommand | None:
-        if self.backing_up > 0:
-            self.backing_up -= 1
+    def _backing_up(self, pose: Pose2D, time_s: float) -> VelocityCommand | None:
+        if self.backing_up is None:
+            return None
+        start_pose, start_s = self.backing_up
+        backed_m = driven_along_heading_m(start_pose, pose, -1.0)
+        if time_s - start_s < self.backup_duration_s - TIME_EPS_S and backed_m < self.config.backup_distance_m - 1e-9:
             return VelocityCommand(-self.config.backup_speed_mps, 0.0)
+        self.backing_up = None
         return None
 
     def record(self, pose: Pose2D, time_s: float, command: VelocityCommand) -> None:
@@ -524,17 +554,21 @@ class ProgressRecovery:
         self.heading_rad: float | None = None
         """The open heading of the recovery running now; None when none runs."""
         self.drive_left_m = 0.0
+        """What is left to drive: less, at each command, the speed last commanded times the real time since it."""
         self.periods = 0
+        """Commands of the running recovery so far (a count only: ``ESCAPE_MAX_S`` bounds it by time)."""
+        self.started_s = 0.0
+        """When the running recovery started."""
 
     def state(self) -> tuple:
         """What a control period changes, for ``LocalPlanner.follow_state``."""
-        return self.left, self.heading_rad, self.drive_left_m, self.periods, self.escapes
+        return self.left, self.heading_rad, self.drive_left_m, self.periods, self.escapes, self.started_s
 
     def restore(self, state: tuple) -> None:
         """Put back a ``state()``."""
-        self.left, self.heading_rad, self.drive_left_m, self.periods, self.escapes = state
+        self.left, self.heading_rad, self.drive_left_m, self.periods, self.escapes, self.started_s = state
 
-    def start(self, pose: Pose2D, bearing_rad: float, scan: LaserScan | None, fov_rad: float) -> bool:
+    def start(self, pose: Pose2D, bearing_rad: float, scan: LaserScan | None, fov_rad: float, time_s: float) -> bool:
         """Begin a recovery if one is left for this goal and an open heading exists; False gives the goal up."""
         if self.left <= 0:
             return False
@@ -543,25 +577,29 @@ class ProgressRecovery:
             return False
         self.left -= 1
         self.escapes += 1
-        self.heading_rad, self.drive_left_m, self.periods = heading, self.config.escape_distance_m, 0
+        self.heading_rad, self.drive_left_m, self.periods, self.started_s = heading, self.config.escape_distance_m, 0, time_s
         return True
 
-    def command(self, pose: Pose2D, scan: LaserScan | None) -> VelocityCommand | None:
-        """This period's command of the running recovery (turn, then drive), or None when none runs (any more)."""
+    def command(self, pose: Pose2D, scan: LaserScan | None, time_s: float, last: tuple[Pose2D, float, VelocityCommand] | None) -> VelocityCommand | None:
+        """This period's command of the running recovery (turn, then drive), or None when none runs (any more).
+        ``last`` is the previous period's (pose, time_s, command) as sent (``StallRecovery.last``; None: the robot
+        stood still since): a drive it commanded counts against ``drive_left_m`` for the real time it ran."""
         if self.heading_rad is None:
             return None
         robot = self.follower.robot
+        if self.periods > 0 and last is not None and last[2].linear_mps > 0.0:
+            self.drive_left_m -= last[2].linear_mps * max(time_s - last[1], 0.0)
         self.periods += 1
+        in_time = time_s - self.started_s < ESCAPE_MAX_S - TIME_EPS_S
         error = wrap_angle_rad(self.heading_rad - pose.yaw_rad)
         turn_radps = float(np.clip(error / robot.control_period_s, -robot.max_angular_radps, robot.max_angular_radps))
-        if self.periods <= ESCAPE_MAX_PERIODS and abs(error) > ESCAPE_TURNED_RAD:
+        if in_time and abs(error) > ESCAPE_TURNED_RAD:
             return VelocityCommand(0.0, turn_radps)
         gap_mps = (self.follower.front_gap_m(scan) - self.config.stop_distance_m) / robot.control_period_s
         v = min(self.config.backup_speed_mps, robot.max_linear_mps, gap_mps, self.drive_left_m / robot.control_period_s)
-        if self.periods > ESCAPE_MAX_PERIODS or v < self.follower.min_speed_mps():
+        if not in_time or v < self.follower.min_speed_mps():
             self.heading_rad = None
             return None
-        self.drive_left_m -= v * robot.control_period_s
         return VelocityCommand(v, turn_radps)
 
 
@@ -600,8 +638,8 @@ class FollowCheckpoint:
     stall_last: tuple[Pose2D, float, VelocityCommand] | None
     """``StallRecovery.last``: (pose, time_s, command) of the last control period."""
     stalled_periods: int
-    backing_up: int
-    """Control periods of back-up still to go."""
+    backing_up: tuple[Pose2D, float] | None
+    """``StallRecovery.backing_up``: (pose, time_s) where and when the running back-up started; None when none runs."""
     backups: int
     last_started_now: bool
     recoveries_left: int
@@ -613,6 +651,8 @@ class FollowCheckpoint:
     escapes: int
     replan_pending: bool
     blocked_why: str
+    escape_started_s: float = 0.0
+    """``ProgressRecovery.started_s``: when the progress recovery running now started (``ESCAPE_MAX_S``)."""
 
     def misfit(self, path_xy_m: np.ndarray | None) -> str:
         """Why this checkpoint cannot be resumed on ``path_xy_m`` (None: no path), "" when it can: a point to follow
@@ -644,7 +684,7 @@ class LocalPlanner:
         self.sensor_fov_rad = sensor_fov_rad
         self.follower = PathFollower(self.robot, self.config, sensor_mount_x_m)
         self.progress = ProgressChecker(self.config.progress_required_m, self.config.progress_window_s)
-        self.stall = StallRecovery(self.config, self.robot.control_period_s)
+        self.stall = StallRecovery(self.config)
         self.recovery = ProgressRecovery(self.follower)
         self.path: np.ndarray | None = None
         self.free: FreeSpace | None = None
@@ -691,13 +731,10 @@ class LocalPlanner:
         geometry, res = self.free.geometry, self.free.geometry.resolution_m
         radius = self.robot.disc_radius_m
         iy, ix = disk_cells(geometry, pose.xy, int(math.ceil(radius / res)) + 2)
-        x0, y0 = geometry.cell_to_world(iy, ix)
-        x0, y0 = x0 - 0.5 * res, y0 - 0.5 * res  # the cells' lower-left corners
-        dx = np.maximum(np.maximum(x0 - pose.x_m, 0.0), pose.x_m - (x0 + res))
-        dy = np.maximum(np.maximum(y0 - pose.y_m, 0.0), pose.y_m - (y0 + res))
-        gap = np.hypot(dx, dy)  # from the robot's centre to the nearest point of each cell
+        cx, cy = geometry.cell_to_world(iy, ix)
+        gap = geometry.cell_gap_m(iy, ix, pose.x_m, pose.y_m)  # from the robot's centre to the nearest point of each cell
         sign = 1.0 if forward else -1.0
-        along = (x0 + 0.5 * res - pose.x_m) * math.cos(pose.yaw_rad) + (y0 + 0.5 * res - pose.y_m) * math.sin(pose.yaw_rad)
+        along = (cx - pose.x_m) * math.cos(pose.yaw_rad) + (cy - pose.y_m) * math.sin(pose.yaw_rad)
         ahead = sign * along > 0.0
         touching = (gap >= 0.5 * self.robot.width_m) & (gap <= radius + 0.5 * res) & ahead & ~self.free.traversable[iy, ix]
         if touching.any():
@@ -763,10 +800,12 @@ class LocalPlanner:
         distance_from_robot: np.ndarray | None = None,
         goal_distance_m: float | None = None,
         occupied: np.ndarray | None = None,
+        explored: np.ndarray | None = None,
     ) -> PlannerStatus:
         """Plan to a new goal; the status is ``blocked`` when there is no path. Without
         ``distance_from_robot``, ``goal_distance_m`` bounds the fast-marching pass (``plan_path``).
-        ``occupied`` (the same map's obstacles) lets the robot reverse only where the map shows none."""
+        ``occupied`` (the same map's obstacles) lets the robot reverse only where the map shows none, and ``explored``
+        (its seen cells) only where it has seen (``FreeSpace.behind_is_clear``)."""
         self.blocked_why = ""
         self.replan_pending = False
         if len(self.contacts_xy_m):  # the decision's grid and distances know nothing of the contacts
@@ -776,7 +815,7 @@ class LocalPlanner:
             traversable = planned_on
         try:
             path = plan_path(traversable, geometry, pose.xy, np.asarray(goal_xy_m, dtype=float), distance_from_robot, goal_distance_m)
-            self.set_path(path, FreeSpace(traversable, geometry, occupied))
+            self.set_path(path, FreeSpace(traversable, geometry, occupied, explored))
         except NoPath as exc:
             self.blocked_why = str(exc)
             self.path = None
@@ -812,10 +851,10 @@ class LocalPlanner:
     def checkpoint(self) -> FollowCheckpoint:
         """The follower's state after this period (``FollowCheckpoint``), to resume from in another planner."""
         last, stalled, backing_up, backups, started_now = self.stall.state()
-        left, heading, drive_left, periods, escapes = self.recovery.state()
+        left, heading, drive_left, periods, escapes, escape_started_s = self.recovery.state()
         return FollowCheckpoint(
             self.status, self.progress_index, self.progress.anchor, last, stalled, backing_up, backups, started_now,
-            left, heading, drive_left, periods, escapes, self.replan_pending, self.blocked_why,
+            left, heading, drive_left, periods, escapes, self.replan_pending, self.blocked_why, escape_started_s,
         )  # fmt: skip
 
     def resume(self, path_xy_m: np.ndarray | None, free: FreeSpace | None, checkpoint: FollowCheckpoint) -> None:
@@ -825,7 +864,7 @@ class LocalPlanner:
         self.path, self.free = path_xy_m, free
         self.status, self.progress_index, self.progress.anchor = c.status, c.progress_index, c.progress_anchor
         self.stall.restore((c.stall_last, c.stalled_periods, c.backing_up, c.backups, c.last_started_now))
-        self.recovery.restore((c.recoveries_left, c.escape_heading_rad, c.escape_drive_left_m, c.escape_periods, c.escapes))
+        self.recovery.restore((c.recoveries_left, c.escape_heading_rad, c.escape_drive_left_m, c.escape_periods, c.escapes, c.escape_started_s))
         self.replan_pending, self.blocked_why = c.replan_pending, c.blocked_why
 
     def remaining_path(self) -> np.ndarray:
@@ -870,12 +909,14 @@ class LocalPlanner:
 
     def _guard_reverse(self, pose: Pose2D, result: FollowResult) -> FollowResult:
         """A reverse command drives the body into space the LIMO's front LiDAR does not see: send it only
-        when the map the path was planned on shows no obstacle in the strip it sweeps this period (as
-        Nav2's BackUp checks its costmap); otherwise stop, and the progress checker ends the goal."""
+        when the map the path was planned on shows no obstacle, unknown cell or map edge in what the body (``planner.body``)
+        sweeps behind it this period, and at least ``REVERSE_LOOKAHEAD_M`` (``FreeSpace.behind_is_clear``, as Nav2's
+        BackUp checks its costmap); otherwise stop, and the progress checker ends the goal."""
         reverse_m = -result.command.linear_mps * self.robot.control_period_s
         if reverse_m <= 0 or self.free is None:
             return result
-        if self.free.behind_is_clear(pose, self.robot.length_m, self.robot.width_m, max(reverse_m, REVERSE_LOOKAHEAD_M)):
+        disc_m = None if self.config.body == "box" else self.robot.disc_radius_m
+        if self.free.behind_is_clear(pose, self.robot.length_m, self.robot.width_m, max(reverse_m, REVERSE_LOOKAHEAD_M), disc_m):
             return result
         return FollowResult(VelocityCommand(0.0, 0.0), result.status, "reverse_blocked")
 
@@ -915,10 +956,10 @@ class LocalPlanner:
                 return FollowResult(turn, self.status)  # still following: the goal is not in view yet
             self.status = PlannerStatus.REACHED
             return FollowResult(stop, self.status)
-        if not self.progress.check(pose, time_s) and not self.recovery.start(pose, self._path_bearing_rad(pose), scan, self.sensor_fov_rad):
+        if not self.progress.check(pose, time_s) and not self.recovery.start(pose, self._path_bearing_rad(pose), scan, self.sensor_fov_rad, time_s):
             self.status = PlannerStatus.NO_PROGRESS
             return FollowResult(stop, self.status)
-        escape = self.recovery.command(pose, scan)
+        escape = self.recovery.command(pose, scan, time_s, self.stall.last)
         if escape is not None:
             return FollowResult(escape, self.status, "escape")
         backups = self.stall.backups
@@ -938,7 +979,7 @@ class LocalPlanner:
         self.status = PlannerStatus.FOLLOWING
         # With the stall recovery off (stall_steps 0) no contact is kept: nothing would back up and re-plan round it.
         if cmd.linear_mps < 0.0 and self.narrow_sensor() and self.config.stall_steps > 0 and self.mark_unmapped_returns(pose, scan):
-            backup = self.stall.back_up_now()  # the follower's creep back would only rock the robot on the same return
+            backup = self.stall.back_up_now(pose, time_s)  # the follower's creep back would only rock the robot on the same return
             if backup is not None:
                 self.replan_pending = True
                 return FollowResult(backup, self.status, "backup")

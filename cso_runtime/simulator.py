@@ -166,11 +166,7 @@ class KinematicSimulator:
         wy, wx = np.divmod(np.flatnonzero(window), 2 * r + 1)
         if not len(wy):
             return math.inf
-        x0 = g.origin_x_m + (wx + (cx - r)) * g.resolution_m
-        y0 = g.origin_y_m + (wy + (cy - r)) * g.resolution_m
-        dx = np.maximum(np.maximum(x0 - x_m, 0.0), x_m - (x0 + g.resolution_m))
-        dy = np.maximum(np.maximum(y0 - y_m, 0.0), y_m - (y0 + g.resolution_m))
-        return float(np.min(np.hypot(dx, dy)))
+        return float(np.min(g.cell_gap_m(wy + (cy - r), wx + (cx - r), x_m, y_m)))
 
     def _can_move(self, clearance_now_m: float, x_m: float, y_m: float, nx_m: float, ny_m: float) -> tuple[bool, float]:
         """A move from (x, y) to (nx, ny) is allowed when the footprint stays clear of walls, or, for a robot already in

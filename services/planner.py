@@ -158,7 +158,7 @@ class PlannerService(Service):
         obs = warm_up_observation(self.ctx.exploration)
         if obs.clusters:
             goal = obs.clusters[0]
-            self.new_planner().set_goal(obs.traversable, obs.geometry, obs.pose, np.asarray(goal.goal_xy_m), obs.distance_m, goal.distance_m, obs.occupied)
+            self.new_planner().set_goal(obs.traversable, obs.geometry, obs.pose, np.asarray(goal.goal_xy_m), obs.distance_m, goal.distance_m, obs.occupied, obs.explored)
 
     def new_planner(self) -> LocalPlanner:
         return LocalPlanner.for_config(self.ctx.exploration)
@@ -442,7 +442,7 @@ class PlannerService(Service):
         d = self.distance_maps.get(f.step)
         distance = d.distance_m if d is not None and d.geometry == f.geometry and d.pose == f.pose else None
         assert f.geometry is not None and f.pose is not None  # frontiers that asked for this decision carry them
-        status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), distance, g.distance_m, f.arrays["occupied"])
+        status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), distance, g.distance_m, f.arrays["occupied"], f.arrays["explored"])
         self.set_goal_blocked = status == PlannerStatus.BLOCKED
         if self.set_goal_blocked:
             log.info("step %d: no path to the goal (%.2f, %.2f): %s", g.step, g.x_m, g.y_m, self.planner.blocked_why)

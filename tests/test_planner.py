@@ -11,7 +11,7 @@ import pytest
 from cso_runtime.config import ExplorationConfig, PlannerConfig, RobotConfig, SensorConfig
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
-from cso_runtime.planner import FreeSpace, LocalPlanner, NoPath, PlannerStatus, ProgressChecker, plan_path
+from cso_runtime.planner import FollowResult, FreeSpace, LocalPlanner, NoPath, PlannerStatus, ProgressChecker, plan_path
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import KinematicSimulator
 from tests.conftest import box_room, l_shaped, walled_grid
@@ -201,7 +201,7 @@ def test_the_robot_reverses_only_where_the_map_shows_no_obstacle_behind_it():
     free = FreeSpace(t, plan.geometry, box)
     facing_it = Pose2D(0.5, start.y_m, 0.0)  # west of the box, facing it: the box is ahead, the west wall 0.24 m behind
     assert not free.behind_is_clear(start, robot.length_m, robot.width_m, 0.1)
-    assert free.behind_is_clear(start, robot.length_m, robot.width_m, 0.04)  # shorter than the gap
+    assert free.behind_is_clear(start, robot.length_m, robot.width_m, 0.035)  # shorter than the gap to the box cell's edge (3.9 cm)
     assert free.behind_is_clear(facing_it, robot.length_m, robot.width_m, 0.15)
     assert not free.behind_is_clear(facing_it, robot.length_m, robot.width_m, 0.3)
     assert free.behind_is_clear(Pose2D(start.x_m, start.y_m + 0.4, 0.0), robot.length_m, robot.width_m, 0.3)  # beside it
@@ -527,7 +527,7 @@ def stall_backs_up(command: VelocityCommand, moved_m: float, turned_rad: float =
     from cso_runtime.planner import StallRecovery
 
     config, dt = PlannerConfig(), RobotConfig().control_period_s
-    stall = StallRecovery(config, dt)
+    stall = StallRecovery(config)
     pose = Pose2D(1.0, 1.0, 0.0)
     for k in range(config.stall_steps + 1):
         if stall.command(pose, k * dt) is not None:
@@ -871,3 +871,87 @@ def test_the_descent_from_every_reachable_cell_of_random_maps_ends_at_the_robot_
             assert np.all(np.isfinite(along)) and np.all(np.diff(along) > 0), (goal, cells)
             squeezed = [(a, b) for a, b in itertools.pairwise(cells) if not np.isfinite(d[a[0], b[1]]) and not np.isfinite(d[b[0], a[1]])]
             assert squeezed == [], (goal, squeezed)
+
+
+def test_the_check_behind_counts_every_cell_the_reversing_body_touches_and_what_the_map_has_not_seen():
+    """``behind_is_clear`` counts a cell that shares any area with what the body sweeps backing up (not only one whose
+    centre lies there): a cell straddling the strip's side; with ``body: disc`` the disc's own sweep, which starts
+    0.12 m behind the centre, not at the box's 0.161 m; and, as planning does (unknown never planned through), an
+    unknown or off-map cell stops a reverse as an obstacle does."""
+    robot = RobotConfig()
+    g = GridGeometry(0.05, (60, 80))
+    none = np.zeros(g.shape, dtype=bool)
+    pose = Pose2D(2.0, 1.5, 0.0)
+    beside = none.copy()
+    iy, ix = g.world_to_cell(pose.x_m - 0.2, pose.y_m + 0.125)  # 0.10-0.15 m left of the centre line, 0.2 m behind
+    beside[iy, ix] = True
+    free = FreeSpace(~beside, g, beside)
+    assert not free.behind_is_clear(pose, robot.length_m, robot.width_m, 0.1)  # its centre is outside the strip
+    assert not free.behind_is_clear(pose, robot.length_m, robot.width_m, 0.1, robot.disc_radius_m)
+    assert FreeSpace(~beside, g, beside).behind_is_clear(Pose2D(pose.x_m, pose.y_m - 0.05, 0.0), robot.length_m, robot.width_m, 0.1)
+
+    fine = GridGeometry(0.02, (100, 150))
+    near = np.zeros(fine.shape, dtype=bool)
+    iy, ix = fine.world_to_cell(pose.x_m - 0.15, pose.y_m)  # 0.14-0.16 m behind: behind the disc, within the box
+    near[iy, ix] = True
+    free = FreeSpace(~near, fine, near)
+    assert not free.behind_is_clear(pose, robot.length_m, robot.width_m, 0.1, robot.disc_radius_m)
+    assert free.behind_is_clear(pose, robot.length_m, robot.width_m, 0.1)  # the box's body is over it already
+
+    unseen = np.ones(g.shape, dtype=bool)
+    iy, ix = g.world_to_cell(pose.x_m - 0.25, pose.y_m)
+    unseen[iy, ix] = False
+    for disc in (None, robot.disc_radius_m):
+        assert FreeSpace(~none, g, none, unseen).behind_is_clear(Pose2D(pose.x_m, pose.y_m, math.pi), robot.length_m, robot.width_m, 0.15, disc)
+        assert not FreeSpace(~none, g, none, unseen).behind_is_clear(pose, robot.length_m, robot.width_m, 0.15, disc)
+        assert FreeSpace(~none, g, none).behind_is_clear(pose, robot.length_m, robot.width_m, 0.15, disc)  # not told what it saw
+        at_edge = Pose2D(0.25, 1.5, 0.0)  # the disc's rear 0.13 m, the box's 0.089 m from the map's edge
+        assert not FreeSpace(~none, g, none).behind_is_clear(at_edge, robot.length_m, robot.width_m, 0.15, disc)
+
+    planner = LocalPlanner(robot)  # body: disc, and set_goal's explored reaches the check
+    assert planner.set_goal(~none, g, pose, np.array([3.5, 1.5]), occupied=none, explored=unseen) == PlannerStatus.FOLLOWING
+    backup = planner.stall.back_up_now(pose, 0.0)
+    assert backup is not None and backup.linear_mps < 0
+    assert planner._guard_reverse(pose, FollowResult(backup, PlannerStatus.FOLLOWING, "backup")).recovery == "reverse_blocked"
+
+
+def _pinned_then_backing_up(period_s: float, backed_per_period_m: float) -> list[float]:
+    """A planner pinned in place for ``stall_steps`` periods of ``period_s``, then backed up: the back-up's commands'
+    speeds, the robot's odometry going ``backed_per_period_m`` back each period."""
+    plan = box_room(4.0, 3.0, 0.05)
+    robot = RobotConfig()
+    planner = LocalPlanner(robot)
+    start = Pose2D(1.0, 1.5, 0.0)
+    planner.set_goal(ground_truth_traversable(plan), plan.geometry, start, np.array([3.5, 1.5]))
+    pose, t, speeds = start, 0.0, []
+    for _ in range(200):
+        result = planner.update(pose, t)
+        if speeds and result.recovery != "backup":
+            break
+        if result.recovery == "backup":
+            speeds.append(result.command.linear_mps)
+            pose = pose.compose_offset(-backed_per_period_m)
+        t += period_s
+    return speeds
+
+
+def test_the_back_up_is_as_far_and_the_escape_as_long_whatever_the_rate_of_the_commands():
+    """The back-up goes ``backup_distance_m`` (0.15 m) and the escape's cap is ``ESCAPE_MAX_S`` (10 s) in real time and
+    odometry, not in control periods: the real LIMO gets a command per scan (10 Hz), not per ``control_period_s``
+    (0.25 s), and 4 commands there backed up 6 cm, 40 capped the escape at 4 s. In lockstep (a command a period) the
+    back-up is the 4 commands it was."""
+    config = PlannerConfig()
+    assert _pinned_then_backing_up(0.25, 0.15 * 0.25) == [-0.15] * 4
+    at_10_hz = _pinned_then_backing_up(0.1, 0.15 * 0.1)
+    assert len(at_10_hz) == 10 and -sum(at_10_hz) * 0.1 == pytest.approx(config.backup_distance_m)
+    assert len(_pinned_then_backing_up(0.1, 0.05)) == 3  # odometry says 0.15 m were driven: done, whatever the time
+
+    plan = box_room(4.0, 3.0, 0.05)
+    robot = RobotConfig()
+    planner = LocalPlanner(robot, PlannerConfig(stall_steps=0))
+    start = Pose2D(1.0, 1.5, 0.0)
+    planner.set_goal(ground_truth_traversable(plan), plan.geometry, start, np.array([1.0, 2.8]))  # to the north
+    nothing = LaserScan(angle_min_rad=-math.pi, angle_increment_rad=math.radians(1.0), range_min_m=0.1, range_max_m=8.0, ranges_m=np.full(360, 8.0))
+    recoveries = [planner.update(start, 0.1 * k, nothing).recovery for k in range(300)]  # a robot that never turns
+    first = recoveries.index("escape")
+    assert recoveries[first : first + 101].count("escape") == 100  # 10 s of turning at 10 Hz, then it gives up

@@ -1119,7 +1119,7 @@ def test_a_robot_stood_still_by_order_is_not_judged_stalled_on_its_last_command(
     assert paused.restore_state(dataclasses.replace(state, follow=pinned_so_far), plan)
     _feed(paused, OdometryMsg(9, t_s + 0.1, pose, episode=5))
     _feed(paused, ScanMsg(9, ex.sim.scan(), ex.sim.sensor_pose(), 5))  # the restart's first command: judged over 0.1 s
-    paused.planner.stall.restore((pinned_so_far.stall_last, stall_steps - 1, 0, 0, False))
+    paused.planner.stall.restore((pinned_so_far.stall_last, stall_steps - 1, None, 0, False))
     _feed(paused, ExploreResumeMsg(False, "alice@lab"))
     _feed(paused, OdometryMsg(10, t_s + 60.0, pose, episode=5))
     _feed(paused, ScanMsg(10, ex.sim.scan(), ex.sim.sensor_pose(), 5))

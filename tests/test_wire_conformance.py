@@ -8,6 +8,7 @@ the docs' version paragraph, and tests/test_dataflow.py the key table's publishe
 from __future__ import annotations
 
 import contextlib
+import copy
 import json
 import math
 import re
@@ -22,6 +23,7 @@ import numpy as np
 import pytest
 import yaml
 
+from cso_runtime.geometry import Pose2D
 from cso_runtime.keys import TOPICS, RobotKeys
 from cso_runtime.messages import (
     MESSAGE_TYPES,
@@ -251,7 +253,10 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "step": 12,
             "episode": EPISODE,
             "path_xy_m": record(np.array([[0.0, -0.1], [-0.05, -0.05]]), "float64"),
-            "free": {"geometry": GEOMETRY, "traversable": record(EXPLORED & ~OCCUPIED, "bool", "bits"), "occupied": record(OCCUPIED, "bool", "bits")},
+            "free": {
+                "geometry": GEOMETRY, "traversable": record(EXPLORED & ~OCCUPIED, "bool", "bits"), "occupied": record(OCCUPIED, "bool", "bits"),
+                "explored": record(EXPLORED, "bool", "bits"),
+            },
         },
         {"step": 40, "episode": EPISODE, "path_xy_m": record(np.zeros((0, 2)), "float64"), "free": None},
     ],
@@ -267,8 +272,11 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "status": "following",
             "progress_index": 1,
             "progress_anchor": [0.0, -0.1, 3.25],
-            "stall": {"last": [0.0, -0.1, 1.5, 3.5, 0.25, -0.5], "stalled_periods": 2, "backing_up": 3, "backups": 1, "last_started_now": False},
-            "recovery": {"recoveries_left": 1, "heading_rad": 0.75, "drive_left_m": 0.125, "escape_periods": 4, "escapes": 1},
+            "stall": {
+                "last": [0.0, -0.1, 1.5, 3.5, 0.25, -0.5], "stalled_periods": 2, "backing_up": 1, "backups": 1, "last_started_now": False,
+                "backup_from": [0.0, -0.05, 1.5, 3.0],
+            },
+            "recovery": {"recoveries_left": 1, "heading_rad": 0.75, "drive_left_m": 0.125, "escape_periods": 4, "escapes": 1, "started_s": 2.5},
             "replan_pending": True,
             "blocked_why": "",
             "contacts": 2,
@@ -284,8 +292,8 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "status": "idle",
             "progress_index": 0,
             "progress_anchor": None,
-            "stall": {"last": None, "stalled_periods": 0, "backing_up": 0, "backups": 0, "last_started_now": False},
-            "recovery": {"recoveries_left": 2, "heading_rad": None, "drive_left_m": 0.0, "escape_periods": 0, "escapes": 0},
+            "stall": {"last": None, "stalled_periods": 0, "backing_up": 0, "backups": 0, "last_started_now": False, "backup_from": None},
+            "recovery": {"recoveries_left": 2, "heading_rad": None, "drive_left_m": 0.0, "escape_periods": 0, "escapes": 0, "started_s": 0.0},
             "replan_pending": False,
             "blocked_why": "",
         },
@@ -951,3 +959,20 @@ def numbers_of(value: Any, path: str = "") -> list[tuple[str, int | float]]:
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return [(path, value)]
     return []
+
+
+def test_a_planner_state_or_plan_of_an_older_planner_still_decodes():
+    """``stall.backup_from``, ``recovery.started_s`` and ``free.explored`` are optional: an older planner counted its
+    back-up in periods to go (``backing_up``) and sent none of them. Its running back-up and escape go on as if
+    started at its last period (``stall.last``); its plan checks no unknown cells behind the robot."""
+    old = copy.deepcopy(BODIES["planner_state"][0])
+    del old["stall"]["backup_from"], old["recovery"]["started_s"]
+    old["stall"]["backing_up"] = 3
+    follow = decode(envelope("planner_state", PlannerStateMsg.VERSION, old), PlannerStateMsg).follow
+    assert follow.backing_up == (Pose2D(0.0, -0.1, 1.5), 3.5) and follow.escape_started_s == 3.5
+    old["stall"]["backing_up"] = 0
+    assert decode(envelope("planner_state", PlannerStateMsg.VERSION, old), PlannerStateMsg).follow.backing_up is None
+    plan = copy.deepcopy(BODIES["planner_plan"][0])
+    del plan["free"]["explored"]
+    free = decode(envelope("planner_plan", PlannerPlanMsg.VERSION, plan), PlannerPlanMsg).free
+    assert free is not None and free.explored is None and free.occupied is not None
