@@ -250,7 +250,7 @@ def check_profiles() -> str:
     row's failure) are named together and the reason said once, not once per profile. Those that load with the
     entropy window their method's weights were trained with (``--set exploration.frontier.entropy_window_m=4``, the
     weights row's note) are noted with it, not failed."""
-    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, setting_text  # noqa: PLC0415
     from cso_runtime.learned.weights import given_weights_problem  # noqa: PLC0415
     from cso_runtime.run_profile import load_profile, profile_names  # noqa: PLC0415
 
@@ -265,7 +265,7 @@ def check_profiles() -> str:
         except ConfigError as exc:
             if problem and problem in str(exc):
                 by_weights.append(name)
-            elif (window := _loads_with_a_window(name, windows or [], stand_in)) is not None:
+            elif (window := _loads_with_a_window(name, windows or [], stand_in, str(exc))) is not None:
                 by_window[name] = window
             else:
                 bad.append(str(exc).replace(f" with --connect {stand_in}", "", 1))
@@ -274,18 +274,23 @@ def check_profiles() -> str:
         raise ValueError(f"{len(bad) + len(by_weights)} of {len(names)} profiles do not load: " + "; ".join(said))
     noted = "".join(
         f"; {', '.join(n for n, w in by_window.items() if w == window)} run their method's weights (the weights row) with"
-        f" --set exploration.frontier.entropy_window_m={window:g}, not with their own window (not a failure)"
+        f" --set exploration.frontier.entropy_window_m={setting_text(window)}, not with their own window (not a failure)"
         for window in sorted(set(by_window.values()))
     )
     return f"{len(names)} profiles valid: {', '.join(names)}{noted}"
 
 
-def _loads_with_a_window(name: str, windows: list[float], stand_in: str) -> float | None:
-    """The first of ``windows`` (``_trained_windows``) with which profile ``name`` loads; None for none."""
+def _loads_with_a_window(name: str, windows: list[float], stand_in: str, why: str) -> float | None:
+    """The first of ``windows`` (``_trained_windows``) with which profile ``name`` loads, of those its error ``why`` is the
+    refusal of (weights trained with it: ``weights.trained_with_said``); None for none. Any other error is the
+    profile's own, which a window given over its own would hide (an ``entropy_window_m`` of -1, say)."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.learned.weights import trained_with_said  # noqa: PLC0415
     from cso_runtime.run_profile import load_profile  # noqa: PLC0415
 
     for window in windows:
+        if trained_with_said("entropy_window_m", window) not in why:
+            continue
         try:
             load_profile(name, {}, connect=[stand_in], settings={"exploration.frontier.entropy_window_m": window})
         except ConfigError:

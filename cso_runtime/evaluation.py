@@ -17,6 +17,7 @@ import json
 import logging
 import math
 import multiprocessing
+import os
 import sys
 import time
 import traceback
@@ -70,6 +71,7 @@ from cso_runtime.config import (
     set_dotted,
     set_said,
     to_dict,
+    utf8_text,
     with_mujoco_limo_defaults,
     with_nearest,
 )
@@ -1246,7 +1248,12 @@ def refuse_scenes_sharing_files(scenes: list[SceneRef]) -> None:
     refuse it, the file of another plan under its name)."""
 
     def said(r: SceneRef) -> str:
-        return f"{r.name!r} ({r.path})" if r.path else repr(r.name)
+        if not r.path:
+            return repr(r.name)
+        # A path of bytes that are no UTF-8 as those bytes: escaped as stderr writes it, ``img_\xff.png`` read as the
+        # very ``img_\udcff.png`` of the file beside it whose name is that text, the one its name is escaped to.
+        path = r.path if utf8_text(r.path) == r.path else f"{os.fsencode(r.path)!r}, a name of bytes that are no UTF-8"
+        return f"{r.name!r} ({path})"
 
     seen: dict[str, SceneRef] = {}
     for ref in scenes:

@@ -6,6 +6,7 @@ import json
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -135,3 +136,37 @@ def test_weights_trained_with_another_entropy_window_are_noted_with_the_set_that
     monkeypatch.setenv(WEIGHTS_DIR_ENV, str(tmp_path / "broken"))
     results = {r.name: r for r in doctor.run_checks(tmp_path, only=[("weights", doctor.check_weights)])}
     assert not results["weights"].ok and "this run's" not in results["weights"].detail, results["weights"].detail
+
+
+def test_a_profile_wrong_for_its_own_window_still_fails_beside_weights_of_another_window(tmp_path, monkeypatch):
+    """Beside weights trained with another entropy window, a profile that did not load was tried again with that window
+    given over its own and, where that loaded, noted and passed: a profile of the user's with an ``entropy_window_m`` of
+    -1, which fails without those weights, then passed too. Only a profile refused for the weights' window is retried;
+    the ``--set`` the note names is the window itself (``3.1234567``, not ``:g``'s ``3.12346``, refused in turn)."""
+    import dataclasses
+
+    import torch
+
+    from cso_runtime.learned.ppo import Args, build_model, save_weights
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+    from tests.conftest import unset_weights_env
+
+    unset_weights_env(monkeypatch)
+    own = tmp_path / "configs" / "profiles"
+    own.mkdir(parents=True)
+    sim = (Path(doctor.__file__).parent / "profiles" / "sim.yaml").read_text(encoding="utf-8")
+    (own / "mine.yaml").write_text(sim.replace("name: sim", "name: mine").replace("exploration: {}", "exploration: {frontier: {entropy_window_m: -1}}"))
+    monkeypatch.chdir(tmp_path)
+    wide = Args(variant="cso", entropy_window_m=3.1234567, out_dir=str(tmp_path / "wide"))
+    save_weights(tmp_path / "wide", build_model(wide, torch.device("cpu")), wide, {"ppo_decisions": 0, "args": dataclasses.asdict(wide)})
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(tmp_path / "wide"))
+
+    with pytest.raises(ValueError) as exc:
+        doctor.check_profiles()
+    why = str(exc.value)
+    assert why.startswith("1 of 4 profiles do not load: configs/profiles/mine.yaml: exploration.frontier.entropy_window_m must be in"), why
+    (own / "mine.yaml").unlink()
+    profiles = doctor.check_profiles()
+    assert profiles.endswith(
+        "limo-ros2, sim run their method's weights (the weights row) with --set exploration.frontier.entropy_window_m=3.1234567, not with their own window (not a failure)"
+    ), profiles

@@ -2911,3 +2911,24 @@ def test_eval_refuses_an_entropy_window_its_learned_weights_were_not_trained_wit
         run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "short", max_steps=5, settings={"frontier.min_cluster_size_m": 0.5}))
     assert "were trained with frontier.min_cluster_size_m 0.3 m, this run's is 0.5 m" in caplog.text
     assert json.loads((tmp_path / "short" / "summary.json").read_text())["methods"]["cso"]["episodes"] == 1
+
+
+def test_the_refusal_of_two_plans_named_alike_once_escaped_tells_their_files_apart(tmp_path: Path):
+    """A plan named in bytes that are no UTF-8 (``img_\\xff.png``) is named ``img_\\udcff``, escaped: beside a file whose
+    name is that very text (``img_\\udcff.png``, a backslash in it) the two share their files and the eval is refused,
+    but the refusal named both by the same path (``plans/img_\\udcff.png`` twice, stderr escaping the first as the
+    other is written): which to rename was not to be told. The one of bytes that are no UTF-8 is named by its bytes."""
+    plans = tmp_path / "plans"
+    plans.mkdir()
+    raw = plans / os.fsdecode(b"img_\xff.png")
+    try:
+        shutil.copy(Path(cso_runtime.__file__).parent / "data" / "scenes" / "img_1.png", raw)
+    except OSError:  # a file system that takes only UTF-8 names (macOS)
+        pytest.skip("this file system refuses a file name of bytes that are no UTF-8")
+    shutil.copy(raw, plans / "img_\\udcff.png")
+    request = EvalRequest(methods=["greedy-dist"], maps=str(plans), out_dir=tmp_path / "out", max_steps=10)
+    with pytest.raises(ConfigError) as exc:
+        plan_eval(request)
+    why = str(exc.value)
+    assert "would share the files episodes/<method>/img__udcff.npz" in why, why
+    assert f"({plans}/img_\\udcff.png)" in why and f"({os.fsencode(raw)!r}, a name of bytes that are no UTF-8)" in why, why

@@ -348,6 +348,12 @@ input is made free of it (lengths in metres over ``distance_scale_m``, I times t
 past-position nodes lie) are the robot's and the run's, and change what the inputs measure, never their scale."""
 
 
+def trained_with_said(key: str, trained: float) -> str:
+    """How ``InputMismatch.said`` names the setting of ``INPUT_CHECKS`` key ``key`` the weights were trained with: what
+    tells its refusal from any other error of a run's settings (``doctor``: a profile refused for another window only)."""
+    return f"were trained with frontier.{key} {setting_text(trained)} m"
+
+
 @dataclasses.dataclass(frozen=True)
 class InputMismatch:
     """One run setting of ``INPUT_CHECKS`` that differs from the weights' training."""
@@ -363,7 +369,7 @@ class InputMismatch:
         compared with (``doctor``, which has no run: "the default config's")."""
         trained, run = setting_text(self.trained), setting_text(self.run)
         matching = f"--set frontier.{self.key}={trained} (up: --set exploration.frontier.{self.key}={trained})"
-        head = f"the weights of {name} ({path}) were trained with frontier.{self.key} {trained} m, {against} is {run} m"
+        head = f"the weights of {name} ({path}) {trained_with_said(self.key, self.trained)}, {against} is {run} m"
         if self.key == "entropy_window_m":
             return (
                 f"{head}: the network's entropy input would be about {self.run / self.trained:g} times what it learned on;"
