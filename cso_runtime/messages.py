@@ -1243,15 +1243,18 @@ class PlannerStateMsg(Message):
         heading = None if _get(recovery, "heading_rad", wr) is None else _num(recovery, "heading_rad", wr, -10.0, 10.0)
         # ``backup_from`` and ``started_s`` are optional (an older planner's state has neither, and counts its back-up
         # in periods to go): a back-up or an escape running without them goes on as if started at ``last``.
+        # ``backing_up`` (required, a count) says whether a back-up runs; ``backup_from`` only where it started.
+        running = _int(stall, "backing_up", ws) > 0
         backup_from = stall.get("backup_from")
-        backing_up: tuple[Pose2D, float] | None
+        backing_up: tuple[Pose2D, float] | None = None
         if backup_from is not None:
             if not isinstance(backup_from, list) or len(backup_from) != 4:
                 raise MessageError("planner_state.stall.backup_from: expected [x_m, y_m, yaw_rad, time_s] or null")
             d = {"pose": backup_from[:3], "t": backup_from[3]}
-            backing_up = (_pose_in(d, "pose", ws + ".backup_from"), _num(d, "t", ws + ".backup_from"))
-        else:
-            backing_up = (last[0], last[1]) if _int(stall, "backing_up", ws) > 0 and last is not None else None
+            started = (_pose_in(d, "pose", ws + ".backup_from"), _num(d, "t", ws + ".backup_from"))
+            backing_up = started if running else None
+        elif running and last is not None:
+            backing_up = (last[0], last[1])
         started_s = _num(recovery, "started_s", wr) if recovery.get("started_s") is not None else (last[1] if last is not None else 0.0)
         follow = FollowCheckpoint(
             PlannerStatus(_str(b, "status", w, PLANNER_FOLLOW_STATUSES)),

@@ -976,3 +976,20 @@ def test_a_planner_state_or_plan_of_an_older_planner_still_decodes():
     del plan["free"]["explored"]
     free = decode(envelope("planner_plan", PlannerPlanMsg.VERSION, plan), PlannerPlanMsg).free
     assert free is not None and free.explored is None and free.occupied is not None
+
+
+def test_a_planner_states_backing_up_is_checked_and_says_whether_a_back_up_runs_beside_its_backup_from():
+    """``stall.backing_up`` is a required count whatever else the state carries: with ``backup_from`` beside it, a float,
+    a string, nil or no ``backing_up`` at all is rejected as without it, and 0 (no back-up runs) is not read as a
+    running back-up from ``backup_from``."""
+    for bad in (2.5, "1", None, ...):
+        body = copy.deepcopy(BODIES["planner_state"][0])
+        if bad is ...:
+            del body["stall"]["backing_up"]
+        else:
+            body["stall"]["backing_up"] = bad
+        with pytest.raises(MessageError, match="backing_up"):
+            decode(envelope("planner_state", PlannerStateMsg.VERSION, body), PlannerStateMsg)
+    body = copy.deepcopy(BODIES["planner_state"][0])
+    body["stall"]["backing_up"] = 0
+    assert decode(envelope("planner_state", PlannerStateMsg.VERSION, body), PlannerStateMsg).follow.backing_up is None
