@@ -135,7 +135,8 @@ def test_weights_trained_with_another_entropy_window_are_noted_with_the_set_that
     (tmp_path / "broken" / "cso.pt").write_bytes(b"not a checkpoint")
     monkeypatch.setenv(WEIGHTS_DIR_ENV, str(tmp_path / "broken"))
     results = {r.name: r for r in doctor.run_checks(tmp_path, only=[("weights", doctor.check_weights)])}
-    assert not results["weights"].ok and "this run's" not in results["weights"].detail, results["weights"].detail
+    detail = results["weights"].detail
+    assert not results["weights"].ok and f"{tmp_path / 'broken' / 'cso.pt'}: not a cso-runtime checkpoint" in detail, detail
 
 
 def test_a_profile_wrong_for_its_own_window_still_fails_beside_weights_of_another_window(tmp_path, monkeypatch):
