@@ -17,6 +17,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from cso_runtime.processes import INCARNATION_ENV, PARENT_PID_ENV, STACK_DUMP_SIGNAL
 
@@ -32,6 +33,16 @@ def python_module_argv(module: str) -> list[str]:
     if sys.version_info >= (3, 11):
         return [sys.executable, "-P", "-m", module]
     return [sys.executable, "-c", f"import runpy, sys; del sys.path[0]; runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"]
+
+
+OWN_GROUP: dict[str, Any] = {"process_group": 0} if sys.version_info >= (3, 11) else {"start_new_session": True}
+"""How a service is spawned: leading a process group of its own (its helpers with it: ``signal_group``, and no Ctrl-C
+or Ctrl-Z of ``up``'s terminal reaches it), in the launcher's session. Not a session of its own: a group whose
+parent outside it is in its session becomes orphaned when that parent dies, and the kernel then sends a stopped
+member SIGHUP and SIGCONT (POSIX orphaned process groups), so a service stopped (SIGSTOP, a debugger) when its
+launcher is killed continues and stops on its launcher's death (``services.common``) rather than stay stopped for
+good, an orphan no one is left to continue or kill. Python 3.10 has no ``process_group`` (``preexec_fn`` is unsafe
+beside the launcher's threads): a session of its own there."""
 
 
 @dataclass
@@ -127,7 +138,7 @@ class Child:
         self.incarnation = secrets.token_hex(8) if self.command is None else ""  # before it runs, as ``came_up``
         with self.log_path.open("ab") as fh:
             env = {**os.environ, "PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid()), INCARNATION_ENV: self.incarnation, **self.env}
-            self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env)
+            self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, **OWN_GROUP)
         self.restart_at = None
         self.spawned_at = time.monotonic()
 

@@ -5421,6 +5421,32 @@ def test_a_killed_launchers_services_stop_at_once_and_each_log_says_why(tmp_path
         assert r.returncode == 0 and [x["state"] for x in json.loads(r.stdout)] == ["launcher died"], r.stdout
 
 
+def test_a_stopped_service_does_not_outlive_its_killed_launcher(tmp_path):
+    """A service stopped (SIGSTOP, a debugger, Ctrl-Z of its own) when its launcher is SIGKILLed cannot act on the
+    kernel's SIGTERM (PR_SET_PDEATHSIG) nor on its own orphan check: it stayed stopped for good, an orphan holding its
+    memory and its place on the network, with no one left to continue or kill it. Each service now leads a process
+    group in its launcher's session, so the launcher's death orphans that group and the kernel sends a stopped one
+    SIGHUP and SIGCONT (POSIX orphaned process groups): it continues, and stops as its siblings do."""
+    from cso_runtime.supervision import process_state
+
+    with detached_run(tmp_path, min_step_period_s=0.25) as (runs, status):
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
+        current = json.loads((runs / "current.json").read_text())
+        launcher, run_dir = current["launcher_pid"], Path(current["run_dir"])
+        mapper = current["services"]["mapper"]["pid"]
+        os.kill(mapper, signal.SIGSTOP)
+        try:
+            wait_for(lambda: process_state(mapper) == "T", 10, "the mapper to be stopped", period_s=0.01)
+            os.kill(launcher, signal.SIGKILL)
+            wait_for(lambda: not pid_alive(mapper), 10, "the stopped mapper to be gone", period_s=0.01)
+        finally:
+            if pid_alive(mapper):
+                os.kill(mapper, signal.SIGCONT)  # the clean-up's `down` and kill reach it all the same
+        text = (run_dir / "logs" / "mapper.log").read_text()
+        why = f"WARNING cso.service: mapper: stopping: the launcher (pid {launcher}) is gone"
+        assert why in text and "INFO cso.service: mapper: stopped" in text.split(why, 1)[1], text[-2000:]
+
+
 def test_down_of_a_cso_run_stops_the_policy_service_on_sigint_and_its_log_ends_with_its_stop(tmp_path):
     """The policy service of method cso (torch) took 1.5 to 3.4 s after its "stopped" line to exit on 2 busy cores (the
     interpreter's teardown), past the 3 s stop timeout now and then: the launcher said "policy still running after
