@@ -162,7 +162,8 @@ def stop_children(children: list[Child], stage_timeout_s: float) -> None:
     own handlers, where SIGINT would end it with a KeyboardInterrupt traceback in its log (a ``down`` right
     after ``up`` left one in every service's log); SIGTERM ends it quietly, or reaches its handler. A command node
     (``Child.command``), which may never say it came up, gets SIGINT first as any program stopped by Ctrl-C would, and is
-    not asked for stacks (its guard has none)."""
+    not asked for stacks (its guard has none). Each signal but SIGKILL comes with a SIGCONT: a stopped service (SIGSTOP,
+    a debugger let go) waited out every stage, its signals pending, and was killed without a clean stop."""
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
         running = [c for c in children if c.alive]
         if not running:
@@ -172,6 +173,8 @@ def stop_children(children: list[Child], stage_timeout_s: float) -> None:
         for c in running:
             assert c.proc is not None
             signal_group(c.proc.pid, signal.SIGTERM if sig == signal.SIGINT and not c.came_up and c.command is None else sig)
+            if sig != signal.SIGKILL:  # a stopped one (SIGSTOP, Ctrl-Z of its own) acts on it only once continued
+                signal_group(c.proc.pid, signal.SIGCONT)
         deadline = time.monotonic() + stage_timeout_s
         for c in running:
             assert c.proc is not None

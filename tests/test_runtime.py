@@ -2088,6 +2088,44 @@ def test_a_service_that_ignores_the_stop_signals_leaves_its_stacks_in_its_log_be
             child.proc.kill()
 
 
+def test_a_stopped_service_is_continued_to_stop_cleanly_not_killed_after_every_stage(tmp_path):
+    """``down`` (or the episode's end) while a service is stopped (SIGSTOP, a debugger, Ctrl-Z of its own): its SIGINT
+    and SIGTERM stayed pending, so it waited out both stages (6 s with the profiles' 3 s) and was SIGKILLed, with no
+    clean stop (its log without "stopped", its trace and profile unwritten). Each stage's signal now comes with a
+    SIGCONT: it handles its SIGINT at once and stops cleanly."""
+    from cso_runtime.supervision import Child, process_state, stop_children
+
+    service = textwrap.dedent(
+        """
+        import signal, sys, threading
+        stop = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda signum, frame: stop.set())
+        print("ready", flush=True)
+        stop.wait()
+        print("stopped cleanly", flush=True)
+        """
+    )
+    child = Child("planner", [sys.executable, "-c", service], tmp_path / "planner.log")
+    child.spawn()
+    try:
+        assert child.proc is not None
+        wait_for(lambda: "ready" in child.log_path.read_text() or not child.alive, 30, "the service to start")
+        child.came_up = True
+        os.kill(child.proc.pid, signal.SIGSTOP)
+        wait_for(lambda: process_state(child.proc.pid) == "T", 10, "the service to be stopped", period_s=0.01)
+        t0 = time.monotonic()
+        stop_children([child], stage_timeout_s=5.0)
+        took_s = time.monotonic() - t0
+        assert child.proc.returncode == 0 and "stopped cleanly" in child.log_path.read_text(), (child.proc.returncode, child.log_path.read_text())
+        assert took_s < 5.0, took_s  # within the first stage, not after two
+    finally:
+        if child.alive:
+            assert child.proc is not None
+            child.proc.kill()
+            child.proc.wait(10)
+
+
 def test_a_service_stopped_before_it_came_up_leaves_no_traceback(tmp_path):
     """``down`` right after ``up`` stops services still importing, before their handlers: SIGINT ended each one
     with a KeyboardInterrupt traceback in its log, read back by ``logs`` as five crashes. One not come up gets
