@@ -1232,9 +1232,15 @@ class Launcher:
 
     def progress_log_line(self, now: float) -> str:
         """The episode's progress line (``progress_log_s``), with how long it has made no new step once that is
-        ``STALLED_STEP_S`` or more (a stopped sim, a stalled lockstep pipeline): the figures alone read as all well."""
+        ``STALLED_STEP_S`` or more (a stopped sim, a stalled lockstep pipeline): the figures alone read as all well.
+        The launcher's own silence (stopped, Ctrl-Z or SIGSTOP, and continued: the steps it did not hear) is not the
+        episode's, as for the hang check: the stall counts from when its status watch asked again, and none is said
+        while the watch has not (``StatusWatch.behind``)."""
         assert self.status is not None
-        stalled_s = now - self.step_changed_s
+        watch = self.status_watch
+        if watch is not None and watch.behind(now):
+            return progress_line(self.status, self.sim_step_s, self.real_time_factor, self.coverage_measured)
+        stalled_s = now - max(self.step_changed_s, watch.resumed_s if watch is not None else -np.inf)
         return progress_line(self.status, self.sim_step_s, self.real_time_factor, self.coverage_measured) + (f"; no new step for {stalled_s:.0f} s" if stalled_s >= STALLED_STEP_S else "")
 
     def ended_at_step(self) -> int | None:

@@ -2639,6 +2639,36 @@ def test_the_progress_line_says_when_the_episode_has_made_no_step_for_a_while(tm
     assert launcher.progress_log_line(1011.5).endswith("goal none")
 
 
+def test_the_progress_line_of_a_launcher_that_was_itself_stopped_does_not_say_the_episode_made_no_step(tmp_path, monkeypatch):
+    """The launcher stopped (Ctrl-Z, SIGSTOP) for 25 s while its services went on (peers: the episode ran on to step
+    144) said on its continue "step 11 ...; no new step for 25 s", a stall of the episode that was its own: the
+    steps it did not hear. Its silence is not the episode's, as for the hang check: the stall counts from when its
+    status watch asks again, and nothing is said of one while the watch has not."""
+    from types import SimpleNamespace
+
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import WATCH_BEHIND_S, Launcher, StatusWatch
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    clock = [1000.0]
+    monkeypatch.setattr(launcher_module, "time", SimpleNamespace(monotonic=lambda: clock[0], time=time.time))
+    profile, data = load_profile(str(find_profile("sim")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+    msg = EpisodeStatusMsg(state="exploring", step=11, scene="s", method="greedy-dist", episode=7)
+    launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda: encode(msg))))
+    watch = launcher.status_watch = StatusWatch(None, keys, threading.Event())
+    watch.asked_s = 1000.0  # its last round before the launcher was stopped
+    line = launcher.progress_log_line(1025.0)  # continued 25 s later, before the watch asked again
+    assert watch.behind(1025.0) and line.endswith("goal none"), line
+    watch.asked_s = watch.resumed_s = 1025.1  # it asked again, and said that the launcher had not run
+    assert launcher.progress_log_line(1026.0).endswith("goal none"), launcher.progress_log_line(1026.0)
+    watch.asked_s = 1035.0  # it goes on asking
+    line = launcher.progress_log_line(1025.1 + 10.0)
+    assert line.endswith("goal none; no new step for 10 s"), line  # a stall since counts
+    assert WATCH_BEHIND_S < 25.0
+
+
 @pytest.mark.parametrize("name", ["lockstep", "limo-ros2"])
 def test_up_shows_and_writes_the_simulators_real_time_factor_measured_on_the_episode(tmp_path, monkeypatch, name):
     """MuJoCo users read a sim's speed against real time: the live view, the progress line and episodes.csv give it,
