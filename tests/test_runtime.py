@@ -5515,6 +5515,22 @@ def test_a_stopped_service_does_not_outlive_its_killed_launcher(tmp_path):
         assert why in text and "INFO cso.service: mapper: stopped" in text.split(why, 1)[1], text[-2000:]
 
 
+def test_a_run_stopped_while_its_sim_is_hung_keeps_its_map_so_far(tmp_path):
+    """``down`` of a run whose sim is hung (SIGSTOP stands in for a deadlock): the map so far was not kept, and the
+    launcher's log said "the run has no map yet, and no episode status answers either: its services may still be
+    starting" at step 10 and more, for the sim serves the map's cache. The mapper, which answers on its map's key,
+    gives it where the cache does not."""
+    with detached_run(tmp_path, min_step_period_s=0.1) as (runs, status):
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 5, 60, "the episode to run")
+        current = json.loads((runs / "current.json").read_text())
+        run_dir, sim = Path(current["run_dir"]), current["services"]["sim"]["pid"]
+        os.kill(sim, signal.SIGSTOP)
+        r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stdout + r.stderr
+        launcher_log = (run_dir / "logs" / "launcher.log").read_text()
+        assert (run_dir / "last_map.yaml").is_file() and re.search(r"the episode's map at step \d+ kept", launcher_log), launcher_log[-3000:]
+
+
 def test_down_of_a_cso_run_stops_the_policy_service_on_sigint_and_its_log_ends_with_its_stop(tmp_path):
     """The policy service of method cso (torch) took 1.5 to 3.4 s after its "stopped" line to exit on 2 busy cores (the
     interpreter's teardown), past the 3 s stop timeout now and then: the launcher said "policy still running after
