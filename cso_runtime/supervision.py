@@ -44,6 +44,11 @@ launcher is killed continues and stops on its launcher's death (``services.commo
 good, an orphan no one is left to continue or kill. Python 3.10 has no ``process_group`` (``preexec_fn`` is unsafe
 beside the launcher's threads): a session of its own there."""
 
+OWN_SESSION: dict[str, Any] = {"start_new_session": True}
+"""How a command node's guard is spawned: a session of its own, without the terminal of a foreground ``up``, which a
+program of any kind may open (a password prompt on /dev/tty), and be stopped for (SIGTTIN) in a group in the
+background of that terminal, instead of failing at once. Its guard, not the node, is what a killed launcher leaves."""
+
 
 @dataclass
 class Child:
@@ -138,7 +143,7 @@ class Child:
         self.incarnation = secrets.token_hex(8) if self.command is None else ""  # before it runs, as ``came_up``
         with self.log_path.open("ab") as fh:
             env = {**os.environ, "PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid()), INCARNATION_ENV: self.incarnation, **self.env}
-            self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, **OWN_GROUP)
+            self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, **(OWN_GROUP if self.command is None else OWN_SESSION))
         self.restart_at = None
         self.spawned_at = time.monotonic()
 
