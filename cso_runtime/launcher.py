@@ -1053,6 +1053,14 @@ class Launcher:
             c.name for c in self.children if c.gave_up and c.gave_up_at is not None and now - c.gave_up_at >= grace and c.name not in self.alive_services
         ]
 
+    def given_up_said(self, c: Child) -> str:
+        """Why the launcher gave up on ``c``, for run.json's ``reason``: its last exit code, its restarts, and its log's
+        last error where it has one."""
+        code = c.exit_codes[-1] if c.exit_codes else None
+        how = "refused its configuration" if code == EXIT_BAD_CONFIG else f"exited (code {code}) after {c.restarts} restart{'s' if c.restarts != 1 else ''}"
+        error = c.last_error()
+        return f"{how}{f': {error}' if error else ''} (see {c.log_path})"
+
     # --- results ----------------------------------------------------------------------------------
     def result_of(self, end: EpisodeStatusMsg | None) -> EpisodeResultMsg | None:
         """The result heard (``result``) if it can be ``end``'s (``result_is_of``; any, with no end), else None."""
@@ -1224,9 +1232,15 @@ class Launcher:
 
     def progress_log_line(self, now: float) -> str:
         """The episode's progress line (``progress_log_s``), with how long it has made no new step once that is
-        ``STALLED_STEP_S`` or more (a stopped sim, a stalled lockstep pipeline): the figures alone read as all well."""
+        ``STALLED_STEP_S`` or more (a stopped sim, a stalled lockstep pipeline): the figures alone read as all well.
+        The launcher's own silence (stopped, Ctrl-Z or SIGSTOP, and continued: the steps it did not hear) is not the
+        episode's, as for the hang check: the stall counts from when its status watch asked again, and none is said
+        while the watch has not (``StatusWatch.behind``)."""
         assert self.status is not None
-        stalled_s = now - self.step_changed_s
+        watch = self.status_watch
+        if watch is not None and watch.behind(now):
+            return progress_line(self.status, self.sim_step_s, self.real_time_factor, self.coverage_measured)
+        stalled_s = now - max(self.step_changed_s, watch.resumed_s if watch is not None else -np.inf)
         return progress_line(self.status, self.sim_step_s, self.real_time_factor, self.coverage_measured) + (f"; no new step for {stalled_s:.0f} s" if stalled_s >= STALLED_STEP_S else "")
 
     def ended_at_step(self) -> int | None:
@@ -1637,6 +1651,7 @@ class Launcher:
                     referee = [c for c in self.children if c.name in REFEREES]
                     if referee and all(c.gave_up for c in referee):
                         log.error("the %s service is gone for good: stopping", referee[0].name)
+                        self.stop_reason = f"gave up on {referee[0].name}: {self.given_up_said(referee[0])}"
                         self.exit_code = 1
                         break
                     unserved = [] if self.outputs_written or ending is not None else self.unserved_services(time.monotonic())
@@ -1645,6 +1660,8 @@ class Launcher:
                             "no process serves %s since the launcher gave up on it (%.0f s): the episode cannot go on, stopping (see %s)",
                             ", ".join(unserved), self.profile.supervision.given_up_grace_s, self.run_dir / "logs",
                         )
+                        # run.json's reason, which `runs` and `report` show: it said "failed" and no more
+                        self.stop_reason = "; ".join(f"gave up on {c.name}: {self.given_up_said(c)}" for c in self.children if c.name in unserved)
                         self.exit_code = 1
                         break
                 else:  # stopped from outside (Ctrl-C, SIGTERM, `down`), not by one of the breaks above

@@ -867,19 +867,25 @@ def newest_map(session: zenoh.Session, robot: str, timeout_s: float = 1.0, run_d
     key = RobotKeys(robot).cache("map")
     said = f"nothing answered on {key}"  # the key, for those who debug
     malformed = ""
-    statuses = session.get(RobotKeys(robot).episode_status, target=zenoh.QueryTarget.ALL, timeout=timeout_s)  # asked at once: both wait together
-    for reply in session.get(key, target=zenoh.QueryTarget.ALL, timeout=timeout_s):
-        if reply.ok is None:
-            said = f"{key} answered: {reply.err.payload.to_string()}" if reply.err is not None else said
-            continue
-        try:
-            msg = decode(reply.ok.payload.to_bytes(), MapMsg)
-        except MessageError as exc:
-            malformed = f"malformed map reply: {exc}"
-            continue
-        assert isinstance(msg, MapMsg)
-        if best is None or msg.step >= best.step:
-            best = msg
+    statuses = session.get(RobotKeys(robot).episode_status, target=zenoh.QueryTarget.ALL, timeout=timeout_s)  # asked at once: all wait together
+    # The mapper's own answer on its map's key, where the cache does not answer: the sim serves the cache, and a hung
+    # (stopped) sim, the run most worth keeping the map of as it is stopped, left none kept.
+    mapper = session.get(RobotKeys(robot).map, target=zenoh.QueryTarget.ALL, timeout=timeout_s)
+    for replies, asked in ((session.get(key, target=zenoh.QueryTarget.ALL, timeout=timeout_s), key), (mapper, RobotKeys(robot).map)):
+        if best is not None:  # the cache's: the mapper's is only for want of it
+            break
+        for reply in replies:
+            if reply.ok is None:
+                said = f"{asked} answered: {reply.err.payload.to_string()}" if reply.err is not None and asked == key else said
+                continue
+            try:
+                msg = decode(reply.ok.payload.to_bytes(), MapMsg)
+            except MessageError as exc:
+                malformed = f"malformed map reply: {exc}"
+                continue
+            assert isinstance(msg, MapMsg)
+            if best is None or msg.step >= best.step:
+                best = msg
     episode = None
     for status in _decoded(statuses, EpisodeStatusMsg):
         map_origin, episode = status.map_origin, status

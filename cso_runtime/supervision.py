@@ -17,6 +17,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from cso_runtime.processes import INCARNATION_ENV, PARENT_PID_ENV, STACK_DUMP_SIGNAL
 
@@ -32,6 +33,21 @@ def python_module_argv(module: str) -> list[str]:
     if sys.version_info >= (3, 11):
         return [sys.executable, "-P", "-m", module]
     return [sys.executable, "-c", f"import runpy, sys; del sys.path[0]; runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"]
+
+
+OWN_GROUP: dict[str, Any] = {"process_group": 0} if sys.version_info >= (3, 11) else {"start_new_session": True}
+"""How a service is spawned: leading a process group of its own (its helpers with it: ``signal_group``, and no Ctrl-C
+or Ctrl-Z of ``up``'s terminal reaches it), in the launcher's session. Not a session of its own: a group whose
+parent outside it is in its session becomes orphaned when that parent dies, and the kernel then sends a stopped
+member SIGHUP and SIGCONT (POSIX orphaned process groups), so a service stopped (SIGSTOP, a debugger) when its
+launcher is killed continues and stops on its launcher's death (``services.common``) rather than stay stopped for
+good, an orphan no one is left to continue or kill. Python 3.10 has no ``process_group`` (``preexec_fn`` is unsafe
+beside the launcher's threads): a session of its own there."""
+
+OWN_SESSION: dict[str, Any] = {"start_new_session": True}
+"""How a command node's guard is spawned: a session of its own, without the terminal of a foreground ``up``, which a
+program of any kind may open (a password prompt on /dev/tty), and be stopped for (SIGTTIN) in a group in the
+background of that terminal, instead of failing at once. Its guard, not the node, is what a killed launcher leaves."""
 
 
 @dataclass
@@ -127,7 +143,7 @@ class Child:
         self.incarnation = secrets.token_hex(8) if self.command is None else ""  # before it runs, as ``came_up``
         with self.log_path.open("ab") as fh:
             env = {**os.environ, "PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid()), INCARNATION_ENV: self.incarnation, **self.env}
-            self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env)
+            self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, **(OWN_GROUP if self.command is None else OWN_SESSION))
         self.restart_at = None
         self.spawned_at = time.monotonic()
 
@@ -151,7 +167,8 @@ def stop_children(children: list[Child], stage_timeout_s: float) -> None:
     own handlers, where SIGINT would end it with a KeyboardInterrupt traceback in its log (a ``down`` right
     after ``up`` left one in every service's log); SIGTERM ends it quietly, or reaches its handler. A command node
     (``Child.command``), which may never say it came up, gets SIGINT first as any program stopped by Ctrl-C would, and is
-    not asked for stacks (its guard has none)."""
+    not asked for stacks (its guard has none). Each signal but SIGKILL comes with a SIGCONT: a stopped service (SIGSTOP,
+    a debugger let go) waited out every stage, its signals pending, and was killed without a clean stop."""
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
         running = [c for c in children if c.alive]
         if not running:
@@ -161,6 +178,8 @@ def stop_children(children: list[Child], stage_timeout_s: float) -> None:
         for c in running:
             assert c.proc is not None
             signal_group(c.proc.pid, signal.SIGTERM if sig == signal.SIGINT and not c.came_up and c.command is None else sig)
+            if sig != signal.SIGKILL:  # a stopped one (SIGSTOP, Ctrl-Z of its own) acts on it only once continued
+                signal_group(c.proc.pid, signal.SIGCONT)
         deadline = time.monotonic() + stage_timeout_s
         for c in running:
             assert c.proc is not None

@@ -482,6 +482,7 @@ def _install_stop_handlers(stop: threading.Event, service: Service | None = None
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    signal.signal(signal.SIGHUP, handler)  # the kernel's, with SIGCONT, to a stopped service its launcher's death orphaned (supervision.OWN_GROUP)
 
 
 LOOP_STUCK_S = 5.0

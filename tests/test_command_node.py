@@ -383,3 +383,28 @@ def test_logs_place_a_command_nodes_unstamped_lines_after_its_start_not_before_t
     said = [(line.service, line.text.split(": ", 1)[-1] if line.service == "launcher" else line.text) for line in lines]
     assert said[0] == ("launcher", "started map_listener (command sh, pid 1)") and said[-1] == ("map_listener", "listening"), said
     assert "INFO node_guard: starting sh -c 'echo listening'" in said[1][1], said
+
+
+def test_a_run_stopped_for_a_node_that_crashes_at_every_start_says_why_in_run_json_and_runs(tmp_path: Path):
+    """A node that crashes as it starts (a camera it cannot open) is restarted ``max_restarts`` times, given up on, and
+    once no one serves it for ``given_up_grace_s`` the run stops, exit 1. Its run.json said "failed" and no more: no
+    reason, so ``runs`` listed "failed, 3 restarts" and the why was in the launcher's log alone. It now names the
+    service given up on, its exit code and restarts."""
+    runs = tmp_path / "runs"
+    crasher = {"command": [sys.executable, "-c", "raise SystemExit('cannot open the camera')"], "inputs": ["map"]}
+    profile = node_profile(tmp_path, crasher, min_step_period_s=0.25)
+    data = yaml.safe_load(profile.read_text())
+    data["supervision"].update(backoff_s=0.05, backoff_max_s=0.1, given_up_grace_s=1.0)
+    profile.write_text(yaml.safe_dump(data))
+    try:
+        r = up_from_this_checkout("--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stderr
+        run_dir = Path(json.loads((runs / "current.json").read_text())["run_dir"])
+        run = wait_for(lambda: (d := json.loads((run_dir / "run.json").read_text())) and d["state"] == "stopped" and d, 60, "the run to stop")
+        assert (run["outcome"], run["exit_code"]) == ("failed", 1), run
+        assert run["reason"].startswith("gave up on map_listener: exited (code 1) after 3 restarts"), run
+        r = cli("runs", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0 and "gave up on map_listener" in " ".join(r.stdout.split()), r.stdout
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []

@@ -2088,6 +2088,44 @@ def test_a_service_that_ignores_the_stop_signals_leaves_its_stacks_in_its_log_be
             child.proc.kill()
 
 
+def test_a_stopped_service_is_continued_to_stop_cleanly_not_killed_after_every_stage(tmp_path):
+    """``down`` (or the episode's end) while a service is stopped (SIGSTOP, a debugger, Ctrl-Z of its own): its SIGINT
+    and SIGTERM stayed pending, so it waited out both stages (6 s with the profiles' 3 s) and was SIGKILLed, with no
+    clean stop (its log without "stopped", its trace and profile unwritten). Each stage's signal now comes with a
+    SIGCONT: it handles its SIGINT at once and stops cleanly."""
+    from cso_runtime.supervision import Child, process_state, stop_children
+
+    service = textwrap.dedent(
+        """
+        import signal, sys, threading
+        stop = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda signum, frame: stop.set())
+        print("ready", flush=True)
+        stop.wait()
+        print("stopped cleanly", flush=True)
+        """
+    )
+    child = Child("planner", [sys.executable, "-c", service], tmp_path / "planner.log")
+    child.spawn()
+    try:
+        assert child.proc is not None
+        wait_for(lambda: "ready" in child.log_path.read_text() or not child.alive, 30, "the service to start")
+        child.came_up = True
+        os.kill(child.proc.pid, signal.SIGSTOP)
+        wait_for(lambda: process_state(child.proc.pid) == "T", 10, "the service to be stopped", period_s=0.01)
+        t0 = time.monotonic()
+        stop_children([child], stage_timeout_s=5.0)
+        took_s = time.monotonic() - t0
+        assert child.proc.returncode == 0 and "stopped cleanly" in child.log_path.read_text(), (child.proc.returncode, child.log_path.read_text())
+        assert took_s < 5.0, took_s  # within the first stage, not after two
+    finally:
+        if child.alive:
+            assert child.proc is not None
+            child.proc.kill()
+            child.proc.wait(10)
+
+
 def test_a_service_stopped_before_it_came_up_leaves_no_traceback(tmp_path):
     """``down`` right after ``up`` stops services still importing, before their handlers: SIGINT ended each one
     with a KeyboardInterrupt traceback in its log, read back by ``logs`` as five crashes. One not come up gets
@@ -2599,6 +2637,36 @@ def test_the_progress_line_says_when_the_episode_has_made_no_step_for_a_while(tm
     assert line.startswith("step 15 (3.8 s robot time") and line.endswith("goal none; no new step for 10 s"), line
     status(16, 1011.0)
     assert launcher.progress_log_line(1011.5).endswith("goal none")
+
+
+def test_the_progress_line_of_a_launcher_that_was_itself_stopped_does_not_say_the_episode_made_no_step(tmp_path, monkeypatch):
+    """The launcher stopped (Ctrl-Z, SIGSTOP) for 25 s while its services went on (peers: the episode ran on to step
+    144) said on its continue "step 11 ...; no new step for 25 s", a stall of the episode that was its own: the
+    steps it did not hear. Its silence is not the episode's, as for the hang check: the stall counts from when its
+    status watch asks again, and nothing is said of one while the watch has not."""
+    from types import SimpleNamespace
+
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import WATCH_BEHIND_S, Launcher, StatusWatch
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    clock = [1000.0]
+    monkeypatch.setattr(launcher_module, "time", SimpleNamespace(monotonic=lambda: clock[0], time=time.time))
+    profile, data = load_profile(str(find_profile("sim")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+    msg = EpisodeStatusMsg(state="exploring", step=11, scene="s", method="greedy-dist", episode=7)
+    launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda: encode(msg))))
+    watch = launcher.status_watch = StatusWatch(None, keys, threading.Event())
+    watch.asked_s = 1000.0  # its last round before the launcher was stopped
+    line = launcher.progress_log_line(1025.0)  # continued 25 s later, before the watch asked again
+    assert watch.behind(1025.0) and line.endswith("goal none"), line
+    watch.asked_s = watch.resumed_s = 1025.1  # it asked again, and said that the launcher had not run
+    assert launcher.progress_log_line(1026.0).endswith("goal none"), launcher.progress_log_line(1026.0)
+    watch.asked_s = 1035.0  # it goes on asking
+    line = launcher.progress_log_line(1025.1 + 10.0)
+    assert line.endswith("goal none; no new step for 10 s"), line  # a stall since counts
+    assert WATCH_BEHIND_S < 25.0
 
 
 @pytest.mark.parametrize("name", ["lockstep", "limo-ros2"])
@@ -5419,6 +5487,48 @@ def test_a_killed_launchers_services_stop_at_once_and_each_log_says_why(tmp_path
         assert "ended_at" not in run and run["stopped_by_down_at"] >= run["started_at"], run
         r = cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 0 and [x["state"] for x in json.loads(r.stdout)] == ["launcher died"], r.stdout
+
+
+def test_a_stopped_service_does_not_outlive_its_killed_launcher(tmp_path):
+    """A service stopped (SIGSTOP, a debugger, Ctrl-Z of its own) when its launcher is SIGKILLed cannot act on the
+    kernel's SIGTERM (PR_SET_PDEATHSIG) nor on its own orphan check: it stayed stopped for good, an orphan holding its
+    memory and its place on the network, with no one left to continue or kill it. Each service now leads a process
+    group in its launcher's session, so the launcher's death orphans that group and the kernel sends a stopped one
+    SIGHUP and SIGCONT (POSIX orphaned process groups): it continues, and stops as its siblings do."""
+    from cso_runtime.supervision import process_state
+
+    with detached_run(tmp_path, min_step_period_s=0.25) as (runs, status):
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
+        current = json.loads((runs / "current.json").read_text())
+        launcher, run_dir = current["launcher_pid"], Path(current["run_dir"])
+        mapper = current["services"]["mapper"]["pid"]
+        os.kill(mapper, signal.SIGSTOP)
+        try:
+            wait_for(lambda: process_state(mapper) == "T", 10, "the mapper to be stopped", period_s=0.01)
+            os.kill(launcher, signal.SIGKILL)
+            wait_for(lambda: not pid_alive(mapper), 10, "the stopped mapper to be gone", period_s=0.01)
+        finally:
+            if pid_alive(mapper):
+                os.kill(mapper, signal.SIGCONT)  # the clean-up's `down` and kill reach it all the same
+        text = (run_dir / "logs" / "mapper.log").read_text()
+        why = f"WARNING cso.service: mapper: stopping: the launcher (pid {launcher}) is gone"
+        assert why in text and "INFO cso.service: mapper: stopped" in text.split(why, 1)[1], text[-2000:]
+
+
+def test_a_run_stopped_while_its_sim_is_hung_keeps_its_map_so_far(tmp_path):
+    """``down`` of a run whose sim is hung (SIGSTOP stands in for a deadlock): the map so far was not kept, and the
+    launcher's log said "the run has no map yet, and no episode status answers either: its services may still be
+    starting" at step 10 and more, for the sim serves the map's cache. The mapper, which answers on its map's key,
+    gives it where the cache does not."""
+    with detached_run(tmp_path, min_step_period_s=0.1) as (runs, status):
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 5, 60, "the episode to run")
+        current = json.loads((runs / "current.json").read_text())
+        run_dir, sim = Path(current["run_dir"]), current["services"]["sim"]["pid"]
+        os.kill(sim, signal.SIGSTOP)
+        r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stdout + r.stderr
+        launcher_log = (run_dir / "logs" / "launcher.log").read_text()
+        assert (run_dir / "last_map.yaml").is_file() and re.search(r"the episode's map at step \d+ kept", launcher_log), launcher_log[-3000:]
 
 
 def test_down_of_a_cso_run_stops_the_policy_service_on_sigint_and_its_log_ends_with_its_stop(tmp_path):
