@@ -556,10 +556,12 @@ def record_command(
     from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
     from cso_runtime.keys import KeyExprError, check_robot_id  # noqa: PLC0415
     from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
-    from cso_runtime.recording import record, recording_path  # noqa: PLC0415
+    from cso_runtime.recording import names_a_folder, record, recording_path  # noqa: PLC0415
     from cso_runtime.status import AmbiguousRobotError, RunTarget, client_transport, endpoints_from_run_file, robot_at_endpoint  # noqa: PLC0415
     from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
 
+    if out is not None and not names_a_folder(out) and Path(out).exists():  # said with no run too, as replay's flags
+        _fail(f"{out} exists; give another --out, or remove it first", 2)
     endpoints, run_robot, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
     try:  # before connecting: a bad id is a usage error whether or not a router answers
         check_robot_id(robot or run_robot or "r0", allow_wildcard=True)
@@ -619,10 +621,6 @@ def replay_command(
         check_chunks(file)  # a wrong, broken or damaged file is the first thing to say
     except RecordingError as exc:
         _fail(str(exc), 2)
-    endpoints, _, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
-    if not endpoints:
-        _fail("no current run; give --connect ENDPOINT", 2)
-    _endpoints_or_exit(endpoints, zenoh_config_file)
     by_key = {key: name for name, key in TOPICS.items()}  # planner/feedback, as docs/messages.md and `dataflow` name it
     wanted = [by_key.get(t.strip(), t.strip()) for t in topics.split(",") if t.strip()] if topics else None
     unknown = [t for t in wanted or [] if t not in TOPICS]  # a typo would replay nothing, silently
@@ -634,6 +632,11 @@ def replay_command(
             raise ValueError(f"--topics names no topic; name some ({', '.join(TOPICS)}), or leave --topics out for all")
     except ValueError as exc:
         _fail(str(exc), 2)
+    # the flags, then where to replay into: a bad --speed is said with no run too, not only once a run is found
+    endpoints, _, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
+    if not endpoints:
+        _fail("no current run; give --connect ENDPOINT", 2)
+    _endpoints_or_exit(endpoints, zenoh_config_file)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))
@@ -1963,6 +1966,7 @@ def main() -> None:
     output whose reader left (a command's, ``--help``'s) ends as a shell tool does, with exit 141. ``up`` names itself
     for ``down`` first of all (``_name_starting_up_early``)."""
     global _starting_up
+    sys.argv[1:] = home_in_option_values(sys.argv[1:])
     try:
         _name_starting_up_early(sys.argv[1:])
         from cso_runtime.provenance import record_command_line  # noqa: PLC0415
@@ -1980,6 +1984,25 @@ def main() -> None:
             if early is not None:  # no `up` took it over: typer refused the command line, or `up` never ran
                 early[1]()
         _give_back_early_handlers()
+
+
+def home_in_option_values(args: list[str]) -> list[str]:
+    """``args`` with a ``~`` that starts the value of a ``--flag=~/...`` (or ``--flag=~``) made the home folder, as
+    the shell makes it in ``--flag ~/...``: the shell leaves the ``=`` form alone (bash, sh; zsh only with
+    magic_equal_subst), so ``eval --out=~/results`` wrote into a folder named ``~`` in the current one (which a
+    later ``rm -rf ~`` empties the home folder for). A value written otherwise (``--set key=~/x``, ``~user``) is
+    kept as typed, and so is everything after ``--``."""
+    import os  # noqa: PLC0415
+
+    expanded: list[str] = []
+    for k, arg in enumerate(args):
+        if arg == "--":
+            return [*expanded, *args[k:]]
+        flag, equals, value = arg.partition("=")
+        if arg.startswith("--") and equals and (value == "~" or value.startswith("~/")):
+            arg = f"{flag}={os.path.expanduser(value)}"
+        expanded.append(arg)
+    return expanded
 
 
 def _give_back_early_handlers() -> None:

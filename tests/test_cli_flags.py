@@ -918,3 +918,47 @@ def test_a_train_set_hint_is_said_beside_another_set_the_check_refuses(tmp_path:
     code, out = train(tmp_path, "--set", "generated=1", "--set", "init_from=gone.pt")
     assert code == 2 and "write --set" not in out, out  # '1' is no scene spec either: no hint that fails in turn
     assert not train_runs
+
+
+def test_a_home_folder_in_a_flag_equals_value_is_the_home_folder(tmp_path: Path):
+    """``eval --out=~/results`` (the ``=`` form, where bash and sh leave the ``~`` alone) wrote into a folder named
+    ``~`` in the current folder, one a later ``rm -rf ~`` would take for the home folder. ``--flag=~/...`` is now
+    the home folder, as ``--flag ~/...`` is after the shell; other values are kept as typed."""
+    from cso_runtime.cli import home_in_option_values
+
+    home, work = tmp_path / "home", tmp_path / "work"
+    home.mkdir()
+    work.mkdir()
+    env = {**os.environ, "HOME": str(home), "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
+    r = subprocess.run([sys.executable, "-m", "cso_runtime", "eval", "--maps", "generated:small:1:0", "--out=~/results", "--dry-run"], capture_output=True, text=True, cwd=work, env=env, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert f"output: {home / 'results'}: a new folder" in r.stdout, r.stdout
+    assert not (work / "~").exists()
+    kept = ["--set", "out=~/x", "--set=key=~/x", "--robot=~user", "--reason=a~/b", "~/typed-alone", "--", "--out=~/after"]
+    assert home_in_option_values(kept) == kept
+    assert home_in_option_values(["--out=~", "-v", "--runs-dir=~/runs"]) == [f"--out={Path('~').expanduser()}", "-v", f"--runs-dir={Path('~/runs').expanduser()}"]
+
+
+def test_a_config_file_that_is_a_folder_or_unreadable_is_one_line_not_a_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``eval --config FOLDER`` said "config file not found" of a folder that is there; a config file the user may not
+    read (another user's, mode 0600) ended in a PermissionError traceback (``config.load_yaml`` caught YAML errors
+    only; a map YAML's reader said it in one line). Both are one line now, exit 2, naming the path."""
+    from cso_runtime.cli import app
+
+    folder = tmp_path / "configs"
+    folder.mkdir()
+    result = CliRunner().invoke(app, ["eval", "--maps", "generated:small:1:0", "--config", str(folder), "--dry-run"])
+    assert result.exit_code == 2 and f"{folder} is a folder; give the YAML file" in " ".join(result.output.split()), result.output
+    locked = tmp_path / "theirs.yaml"
+    locked.write_text("episode: {max_steps: 5}\n")
+    real_open = Path.open
+
+    def no_permission(self: Path, *args: object, **kwargs: object):  # root reads a 0000 file: refuse it as for a user
+        if self == locked:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_open(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Path, "open", no_permission)
+    result = CliRunner().invoke(app, ["eval", "--maps", "generated:small:1:0", "--config", str(locked), "--dry-run"])
+    assert result.exit_code == 2, result.exception
+    assert f"{locked}: cannot read the config file (Permission denied)" in " ".join(result.output.split()), result.output

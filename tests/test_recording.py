@@ -918,3 +918,23 @@ def test_replay_upgrades_the_old_messages_of_a_run_that_raised_max_grid_cells(tm
             signal.signal(sig, handler)
     assert r.exit_code == 0, r.output
     assert stats.upgraded == {keys.topic("distance_map"): 1} and not stats.unreadable, (stats, r.output)
+
+
+def test_replay_and_record_say_a_bad_flag_with_no_run_too(tmp_path: Path):
+    """``replay FILE --speed abc`` with no current run said "no current run; give --connect ENDPOINT", and once a run
+    was found, that the speed was bad: two tries for two mistakes of one command line. So did ``record --out FILE``
+    of a recording that exists. The flags are said first now, with no run as with one (exit 2, nothing made)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    recording = tmp_path / "run.mcap"
+    _written_scans(recording, 1)
+    no_run = ["--runs-dir", str(tmp_path / "runs")]
+    r = CliRunner().invoke(app, ["replay", str(recording), "--speed", "abc", *no_run])
+    assert r.exit_code == 2 and "speed must be a positive number or 'max', got 'abc'" in r.output, r.output
+    r = CliRunner().invoke(app, ["replay", str(recording), "--topics", "scans", *no_run])
+    assert r.exit_code == 2 and "unknown topic(s) scans" in r.output, r.output
+    r = CliRunner().invoke(app, ["record", "--out", str(recording), *no_run])
+    assert r.exit_code == 2 and f"{recording} exists; give another --out" in r.output, r.output
+    assert not (tmp_path / "runs").exists()
