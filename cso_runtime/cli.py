@@ -325,7 +325,7 @@ def _warn_of_a_watchdog_within_a_step(prof: Profile) -> None:
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", autocompletion=_complete_method_list, help=METHODS_HELP),
     maps: str = typer.Option("builtin", "--maps", "--scene", help="Folder of PNG plans, one PNG, a map_server FILE.yaml, 'builtin', or generated:SCALE:N:SEED (--scene, as in `up`, is the same option)"),
-    limit: int | None = typer.Option(None, "--limit", help="Use at most N scenes"),
+    limit: int | None = typer.Option(None, "--limit", help="Use at most N scenes (default: every scene of the spec)"),
     out: Path = typer.Option(Path("results/eval"), "--out", help="Output folder"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans (0.1 super large, 0.05 large)"),
     seed: int | None = typer.Option(None, "--seed", help="Episode seed (random policy, sensor noise); default 0"),
@@ -771,7 +771,7 @@ def animate_command(
 def scenes_command(
     spec: str = typer.Argument("builtin", help="Scene spec: builtin, a folder of PNG plans or map YAMLs, FILE.png, FILE.yaml, generated:SCALE:N:SEED"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans, as in eval (0.1 super large, 0.05 large)"),
-    limit: int | None = typer.Option(None, "--limit", min=1, help="At most N scenes"),
+    limit: int | None = typer.Option(None, "--limit", min=1, help="At most N scenes (default: every scene of the spec)"),
     preview: Path | None = typer.Option(None, "--preview", help="Also write a PNG of each plan into this folder: reachable free space, start pose"),
     mjcf: Path | None = typer.Option(None, "--mjcf", help="Also write each plan's MuJoCo world (walls, floor, the LIMO, whose default pose qpos0 is the start pose, as is keyframe 'start') into this folder as NAME.xml, for `python -m mujoco.viewer --mjcf FILE`"),
     sim_config: Path | None = typer.Option(
@@ -895,7 +895,7 @@ def up_command(
     scene: str | None = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, FILE.yaml (a map_server map), generated:SCALE:N:SEED; one episode, on its first plan"),
     method: str | None = typer.Option(None, "--method", autocompletion=_complete_methods, help="Goal selector (overrides the profile): a method's name or your own as module.path:Attribute (docs/own-method.md)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (overrides the profile)"),
-    seed: int | None = typer.Option(None, "--seed", help="Episode seed (overrides the profile)"),
+    seed: int | None = typer.Option(None, "--seed", help="Episode seed (overrides the profile; default: the profile's seed, 0 in the shipped ones)"),
     lockstep: bool | None = typer.Option(None, "--lockstep/--real-time", help="Deterministic lockstep or real time (overrides the profile)"),
     detach: bool = typer.Option(False, "--detach", help="Run in the background until `cso-runtime down`"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where runs/<run-id>/ (logs, results) go"),
@@ -1173,8 +1173,8 @@ def runs_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the run folders are"),
     limit: int = typer.Option(20, "--limit", min=1, help="Show the newest N runs"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
-    keep: int | None = typer.Option(None, "--keep", min=0, help="Prune: the runs beyond the newest N (listed; --yes deletes them)"),
-    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0, unit="days"), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
+    keep: int | None = typer.Option(None, "--keep", min=0, help="Prune: the runs beyond the newest N (listed; --yes deletes them; default: none pruned)"),
+    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0, unit="days"), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them; default: none pruned)"),
     yes: bool = typer.Option(False, "--yes", help="Delete the runs --keep/--older-than select (never the current or a running one)"),
 ) -> None:
     """List the runs `up` left in --runs-dir: state, scene, method and the episode's Table 1 row; or prune old ones."""
@@ -1268,7 +1268,7 @@ def logs_command(
     services: list[str] | None = typer.Argument(None, metavar="SERVICE", autocompletion=_complete_log_services, help="Services to show (default: all, the launcher's own log included)"),
     run: str | None = typer.Option(None, "--run", autocompletion=_complete_run_ids, help="Run id under --runs-dir, or a run folder (default: the current run, else the newest)"),
     follow: bool = typer.Option(False, "--follow", "-f", help="Keep printing new lines until the run ends (or Ctrl-C)"),
-    tail: int | None = typer.Option(None, "--tail", "-n", min=0, help="Only the last N lines of each service"),
+    tail: int | None = typer.Option(None, "--tail", "-n", min=0, help="Only the last N lines of each service (default: every line)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the run folders are"),
 ) -> None:
     """A run's service logs merged in time order, each line after its service's name (like `docker compose logs`)."""
@@ -1429,13 +1429,13 @@ def train_command(
     ),
     variant: str | None = typer.Option(None, "--variant", help="cso, cso-no-info, cso-no-mask, cso-sm, cso-vdm or gnn-baseline"),
     out: Path | None = typer.Option(None, "--out", help="Output folder (overrides out_dir)"),
-    seed: int | None = typer.Option(None, "--seed", help="Seed (overrides the config)"),
-    total_decisions: int | None = typer.Option(None, "--total-decisions", help="PPO budget in goal choices"),
-    time_limit: float | None = typer.Option(None, "--time-limit-s", help="Stop after this much wall time (0 = none)"),
+    seed: int | None = typer.Option(None, "--seed", help="Seed (overrides the config; default: the config's seed)"),
+    total_decisions: int | None = typer.Option(None, "--total-decisions", help="PPO budget in goal choices (default: the config's total_decisions)"),
+    time_limit: float | None = typer.Option(None, "--time-limit-s", help="Stop after this many seconds of wall time (0 = none; default: the config's time_limit_s)"),
     resume: Path | None = typer.Option(None, "--resume", help="checkpoint.pt to continue from"),
     device: str | None = typer.Option(None, "--device", help="auto, cpu, cuda or cuda:N"),
     init_from: str | None = typer.Option(None, "--init-from", help="Fine-tune: start from these weights (a run's <variant>.pt or checkpoint.pt, or 'shipped')"),
-    num_envs: int | None = typer.Option(None, "--num-envs", help="Parallel environments"),
+    num_envs: int | None = typer.Option(None, "--num-envs", help="Parallel environments (default: the config's num_envs)"),
     async_envs: bool | None = typer.Option(None, "--async-envs/--sync-envs", help="One process per environment, or all in this one"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
     tensorboard: bool | None = typer.Option(None, "--tensorboard/--no-tensorboard", help="Also write TensorBoard events into OUT/tensorboard (needs tensorboardX)"),
@@ -1505,7 +1505,7 @@ def collect_teacher_command(
     workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
     decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
     time_limit: float = typer.Option(0.0, "--time-limit-s", **_bounded(0.0, unit="s"), help="Each worker stops after this wall time (0 = none)"),
-    seed: int | None = typer.Option(None, "--seed", help="Worker i uses seed + i"),
+    seed: int | None = typer.Option(None, "--seed", help="Worker i uses seed + i (default: the config's seed)"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:

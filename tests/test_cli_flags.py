@@ -962,3 +962,24 @@ def test_a_config_file_that_is_a_folder_or_unreadable_is_one_line_not_a_tracebac
     result = CliRunner().invoke(app, ["eval", "--maps", "generated:small:1:0", "--config", str(locked), "--dry-run"])
     assert result.exit_code == 2, result.exception
     assert f"{locked}: cannot read the config file (Permission denied)" in " ".join(result.output.split()), result.output
+
+
+def test_every_number_flag_says_its_default():
+    """``eval --limit``, ``logs --tail``, ``train --total-decisions`` and others said what a number is but not what
+    it is when left out (all the scenes? every line? the recipe's?), where ``status --period`` shows ``[default:
+    1.0]``. Every option that takes a number says its default now: typer's ``[default: ...]`` or ``default`` in its
+    help."""
+    import typer
+
+    from cso_runtime.cli import app
+
+    silent = []
+    for name, command in typer.main.get_command(app).commands.items():
+        for param in command.params:
+            annotation = getattr(getattr(param, "type_descriptor", None), "annotation", None)
+            if param.param_type_name != "option" or annotation not in (int, float, int | None, float | None):
+                continue
+            shown = param.show_default is not False and param.default is not None
+            if not shown and "default" not in (param.help or ""):
+                silent.append(f"{name} {param.opts[0]}")
+    assert silent == [], silent
