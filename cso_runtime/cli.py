@@ -599,7 +599,7 @@ def record_command(
 @app.command("replay", rich_help_panel="Recordings")
 def replay_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record`"),
-    speed: str = typer.Option("1.0", "--speed", help="Playback speed factor, or 'max' for as fast as possible"),
+    speed: str = typer.Option("1.0", "--speed", help="Playback speed factor (0.001 or more), or 'max' for as fast as possible"),
     topics: str | None = typer.Option(
         None, "--topics", help="Comma-separated topics to replay, by name or key (e.g. clock,odom,scan,planner/feedback); default all"
     ),
