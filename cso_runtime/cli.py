@@ -691,7 +691,7 @@ def export_bag_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record` (or `up --record`)"),
     out: Path | None = typer.Option(None, "--out", help="The new bag folder (default: the recording's name without .mcap, beside it)"),
     robot: str | None = typer.Option(None, "--robot", help="Whose messages (default: the recording's only robot)"),
-    map_period_s: float = typer.Option(1.0, "--map-period-s", help="At most one /map per this many seconds of the run, and the last (0: every map)"),
+    map_period_s: float = typer.Option(1.0, "--map-period-s", help="At most one /map per this many seconds of the run, and the last (0: every map; at most 1e9)"),
     time_base: str = typer.Option("sim", "--time", help="sim: each message at its step's robot time (0.25 s a step, even in lockstep); received: at its reception"),
     namespace: str = typer.Option("", "--namespace", help="Put every topic but /tf and /tf_static under /NS/ and every frame id under NS/ (robot1/base_link), so that several robots' bags can be merged"),
     map_frame: str = typer.Option(FRAME_OPTIONS["map"].default, FRAME_OPTIONS["map"].flag, help=FRAME_OPTIONS["map"].help),
