@@ -1064,14 +1064,19 @@ def save_map_command(
 
 @app.command("pause", rich_help_panel="Runtime (Zenoh services)")
 def pause_command(
-    reason: str = typer.Option("", "--reason", help="Why (shown by `status`)"),
+    reason: str = typer.Option("", "--reason", help="Why (shown by `status`; at most 1,024 characters)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
 ) -> None:
     """Pause exploration: the robot holds still (zero velocity), the run goes on, until `resume` (explore_lite's explore/resume false)."""
+    from cso_runtime.config import utf8_text  # noqa: PLC0415
+    from cso_runtime.messages import MAX_RESUME_REASON_CHARS  # noqa: PLC0415
     from cso_runtime.status import explore_resume_main  # noqa: PLC0415
 
+    reason = utf8_text(reason)  # a byte UTF-8 cannot carry (a Latin-1 terminal's): escaped, not a traceback on sending
+    if len(reason) > MAX_RESUME_REASON_CHARS:  # every service would drop the pause: the robot would go on
+        _fail(f"--reason is {len(reason):,} characters; at most {MAX_RESUME_REASON_CHARS:,} (messages.MAX_RESUME_REASON_CHARS): say it shorter", 2)
     raise typer.Exit(explore_resume_main(list(connect or []), robot, runs_dir, resume=False, reason=reason))
 
 

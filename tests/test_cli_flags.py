@@ -983,3 +983,24 @@ def test_every_number_flag_says_its_default():
             if not shown and "default" not in (param.help or ""):
                 silent.append(f"{name} {param.opts[0]}")
     assert silent == [], silent
+
+
+def test_pause_says_a_reason_no_receiver_would_take_before_sending_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``pause --reason`` of 5,000 characters was sent, refused by the launcher and every service (a pause's reason
+    holds at most 1,024), and the robot went on exploring; a reason of a byte UTF-8 cannot carry (``$'\\xff'`` from a
+    Latin-1 terminal) ended in a UnicodeEncodeError traceback as it was sent. The first is refused before anything is
+    sent (exit 2, saying the limit), the second escaped (``\\udcff``), as every other text of a message is."""
+    from cso_runtime import status
+    from cso_runtime.cli import app
+    from cso_runtime.messages import MAX_RESUME_REASON_CHARS, ExploreResumeMsg, decode, encode
+
+    sent: list[str] = []
+    monkeypatch.setattr(status, "explore_resume_main", lambda connect, robot, runs_dir, resume, reason="": sent.append(reason) or 0)
+    r = CliRunner().invoke(app, ["pause", "--runs-dir", str(tmp_path), "--reason", "x" * (MAX_RESUME_REASON_CHARS + 1)])
+    assert r.exit_code == 2 and "--reason is 1,025 characters; at most 1,024" in " ".join(r.output.split()) and sent == [], r.output
+    r = CliRunner().invoke(app, ["pause", "--runs-dir", str(tmp_path), "--reason", "x" * MAX_RESUME_REASON_CHARS])
+    assert r.exit_code == 0 and len(sent[-1]) == MAX_RESUME_REASON_CHARS, r.output
+    r = CliRunner().invoke(app, ["pause", "--runs-dir", str(tmp_path), "--reason", "caf\udcff"])
+    assert r.exit_code == 0 and sent[-1] == "caf\\udcff", r.output
+    for reason in sent:  # what the receivers take
+        assert decode(encode(ExploreResumeMsg(False, "me@here", reason, 1.0))).reason == reason
