@@ -140,11 +140,18 @@ def namespaced(name: str, namespace: str) -> str:
     return f"/{ns}{name}" if name.startswith("/") else f"{ns}/{name}"
 
 
+MAX_MAP_PERIOD_S = 1e9
+"""The longest ``map_period_s`` (``export-bag --map-period-s``), about 32 years: any longer is the same bag (the last map
+alone), and 1e308 s overflowed when made nanoseconds (``int(inf)``): a traceback, not an error."""
+
+
 def check_export_settings(map_period_s: float, time: str, names: tuple[str, str] = ("map_period_s", "time")) -> None:
     """Refuse a ``map_period_s`` below 0 (or not finite) and a ``time`` not in ``TIME_MODES``, naming them as ``names``
     (``export-bag`` passes its flags, ``--map-period-s`` and ``--time``)."""
     if not (math.isfinite(map_period_s) and map_period_s >= 0):
         raise ValueError(f"{names[0]} must be a number of seconds >= 0, not {map_period_s:g}")
+    if map_period_s > MAX_MAP_PERIOD_S:  # 1e308 s: an OverflowError traceback once in nanoseconds
+        raise ValueError(f"{names[0]} must be at most {MAX_MAP_PERIOD_S:g} s (bag_export.MAX_MAP_PERIOD_S: longer than any run, its last map alone), not {map_period_s:g}")
     if time not in TIME_MODES:
         raise ValueError(f"{names[1]} must be one of {', '.join(TIME_MODES)}, not {time!r}")
 

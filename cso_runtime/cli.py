@@ -325,7 +325,7 @@ def _warn_of_a_watchdog_within_a_step(prof: Profile) -> None:
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", autocompletion=_complete_method_list, help=METHODS_HELP),
     maps: str = typer.Option("builtin", "--maps", "--scene", help="Folder of PNG plans, one PNG, a map_server FILE.yaml, 'builtin', or generated:SCALE:N:SEED (--scene, as in `up`, is the same option)"),
-    limit: int | None = typer.Option(None, "--limit", help="Use at most N scenes"),
+    limit: int | None = typer.Option(None, "--limit", help="Use at most N scenes (default: every scene of the spec)"),
     out: Path = typer.Option(Path("results/eval"), "--out", help="Output folder"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans (0.1 super large, 0.05 large)"),
     seed: int | None = typer.Option(None, "--seed", help="Episode seed (random policy, sensor noise); default 0"),
@@ -556,10 +556,12 @@ def record_command(
     from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
     from cso_runtime.keys import KeyExprError, check_robot_id  # noqa: PLC0415
     from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
-    from cso_runtime.recording import record, recording_path  # noqa: PLC0415
+    from cso_runtime.recording import names_a_folder, record, recording_path  # noqa: PLC0415
     from cso_runtime.status import AmbiguousRobotError, RunTarget, client_transport, endpoints_from_run_file, robot_at_endpoint  # noqa: PLC0415
     from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
 
+    if out is not None and not names_a_folder(out) and Path(out).exists():  # said with no run too, as replay's flags
+        _fail(f"{out} exists; give another --out, or remove it first", 2)
     endpoints, run_robot, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
     try:  # before connecting: a bad id is a usage error whether or not a router answers
         check_robot_id(robot or run_robot or "r0", allow_wildcard=True)
@@ -597,7 +599,7 @@ def record_command(
 @app.command("replay", rich_help_panel="Recordings")
 def replay_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record`"),
-    speed: str = typer.Option("1.0", "--speed", help="Playback speed factor, or 'max' for as fast as possible"),
+    speed: str = typer.Option("1.0", "--speed", help="Playback speed factor (0.001 or more), or 'max' for as fast as possible"),
     topics: str | None = typer.Option(
         None, "--topics", help="Comma-separated topics to replay, by name or key (e.g. clock,odom,scan,planner/feedback); default all"
     ),
@@ -619,10 +621,6 @@ def replay_command(
         check_chunks(file)  # a wrong, broken or damaged file is the first thing to say
     except RecordingError as exc:
         _fail(str(exc), 2)
-    endpoints, _, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
-    if not endpoints:
-        _fail("no current run; give --connect ENDPOINT", 2)
-    _endpoints_or_exit(endpoints, zenoh_config_file)
     by_key = {key: name for name, key in TOPICS.items()}  # planner/feedback, as docs/messages.md and `dataflow` name it
     wanted = [by_key.get(t.strip(), t.strip()) for t in topics.split(",") if t.strip()] if topics else None
     unknown = [t for t in wanted or [] if t not in TOPICS]  # a typo would replay nothing, silently
@@ -634,6 +632,11 @@ def replay_command(
             raise ValueError(f"--topics names no topic; name some ({', '.join(TOPICS)}), or leave --topics out for all")
     except ValueError as exc:
         _fail(str(exc), 2)
+    # the flags, then where to replay into: a bad --speed is said with no run too, not only once a run is found
+    endpoints, _, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
+    if not endpoints:
+        _fail("no current run; give --connect ENDPOINT", 2)
+    _endpoints_or_exit(endpoints, zenoh_config_file)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))
@@ -688,7 +691,7 @@ def export_bag_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record` (or `up --record`)"),
     out: Path | None = typer.Option(None, "--out", help="The new bag folder (default: the recording's name without .mcap, beside it)"),
     robot: str | None = typer.Option(None, "--robot", help="Whose messages (default: the recording's only robot)"),
-    map_period_s: float = typer.Option(1.0, "--map-period-s", help="At most one /map per this many seconds of the run, and the last (0: every map)"),
+    map_period_s: float = typer.Option(1.0, "--map-period-s", help="At most one /map per this many seconds of the run, and the last (0: every map; at most 1e9)"),
     time_base: str = typer.Option("sim", "--time", help="sim: each message at its step's robot time (0.25 s a step, even in lockstep); received: at its reception"),
     namespace: str = typer.Option("", "--namespace", help="Put every topic but /tf and /tf_static under /NS/ and every frame id under NS/ (robot1/base_link), so that several robots' bags can be merged"),
     map_frame: str = typer.Option(FRAME_OPTIONS["map"].default, FRAME_OPTIONS["map"].flag, help=FRAME_OPTIONS["map"].help),
@@ -768,7 +771,7 @@ def animate_command(
 def scenes_command(
     spec: str = typer.Argument("builtin", help="Scene spec: builtin, a folder of PNG plans or map YAMLs, FILE.png, FILE.yaml, generated:SCALE:N:SEED"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans, as in eval (0.1 super large, 0.05 large)"),
-    limit: int | None = typer.Option(None, "--limit", min=1, help="At most N scenes"),
+    limit: int | None = typer.Option(None, "--limit", min=1, help="At most N scenes (default: every scene of the spec)"),
     preview: Path | None = typer.Option(None, "--preview", help="Also write a PNG of each plan into this folder: reachable free space, start pose"),
     mjcf: Path | None = typer.Option(None, "--mjcf", help="Also write each plan's MuJoCo world (walls, floor, the LIMO, whose default pose qpos0 is the start pose, as is keyframe 'start') into this folder as NAME.xml, for `python -m mujoco.viewer --mjcf FILE`"),
     sim_config: Path | None = typer.Option(
@@ -892,7 +895,7 @@ def up_command(
     scene: str | None = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, FILE.yaml (a map_server map), generated:SCALE:N:SEED; one episode, on its first plan"),
     method: str | None = typer.Option(None, "--method", autocompletion=_complete_methods, help="Goal selector (overrides the profile): a method's name or your own as module.path:Attribute (docs/own-method.md)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (overrides the profile)"),
-    seed: int | None = typer.Option(None, "--seed", help="Episode seed (overrides the profile)"),
+    seed: int | None = typer.Option(None, "--seed", help="Episode seed (overrides the profile; default: the profile's seed, 0 in the shipped ones)"),
     lockstep: bool | None = typer.Option(None, "--lockstep/--real-time", help="Deterministic lockstep or real time (overrides the profile)"),
     detach: bool = typer.Option(False, "--detach", help="Run in the background until `cso-runtime down`"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where runs/<run-id>/ (logs, results) go"),
@@ -1061,14 +1064,19 @@ def save_map_command(
 
 @app.command("pause", rich_help_panel="Runtime (Zenoh services)")
 def pause_command(
-    reason: str = typer.Option("", "--reason", help="Why (shown by `status`)"),
+    reason: str = typer.Option("", "--reason", help="Why (shown by `status`; at most 1,024 characters)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
 ) -> None:
     """Pause exploration: the robot holds still (zero velocity), the run goes on, until `resume` (explore_lite's explore/resume false)."""
+    from cso_runtime.config import utf8_text  # noqa: PLC0415
+    from cso_runtime.messages import MAX_RESUME_REASON_CHARS  # noqa: PLC0415
     from cso_runtime.status import explore_resume_main  # noqa: PLC0415
 
+    reason = utf8_text(reason)  # a byte UTF-8 cannot carry (a Latin-1 terminal's): escaped, not a traceback on sending
+    if len(reason) > MAX_RESUME_REASON_CHARS:  # every service would drop the pause: the robot would go on
+        _fail(f"--reason is {len(reason):,} characters; at most {MAX_RESUME_REASON_CHARS:,} (messages.MAX_RESUME_REASON_CHARS): say it shorter", 2)
     raise typer.Exit(explore_resume_main(list(connect or []), robot, runs_dir, resume=False, reason=reason))
 
 
@@ -1170,8 +1178,8 @@ def runs_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the run folders are"),
     limit: int = typer.Option(20, "--limit", min=1, help="Show the newest N runs"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
-    keep: int | None = typer.Option(None, "--keep", min=0, help="Prune: the runs beyond the newest N (listed; --yes deletes them)"),
-    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0, unit="days"), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
+    keep: int | None = typer.Option(None, "--keep", min=0, help="Prune: the runs beyond the newest N (listed; --yes deletes them; default: none pruned)"),
+    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0, unit="days"), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them; default: none pruned)"),
     yes: bool = typer.Option(False, "--yes", help="Delete the runs --keep/--older-than select (never the current or a running one)"),
 ) -> None:
     """List the runs `up` left in --runs-dir: state, scene, method and the episode's Table 1 row; or prune old ones."""
@@ -1265,7 +1273,7 @@ def logs_command(
     services: list[str] | None = typer.Argument(None, metavar="SERVICE", autocompletion=_complete_log_services, help="Services to show (default: all, the launcher's own log included)"),
     run: str | None = typer.Option(None, "--run", autocompletion=_complete_run_ids, help="Run id under --runs-dir, or a run folder (default: the current run, else the newest)"),
     follow: bool = typer.Option(False, "--follow", "-f", help="Keep printing new lines until the run ends (or Ctrl-C)"),
-    tail: int | None = typer.Option(None, "--tail", "-n", min=0, help="Only the last N lines of each service"),
+    tail: int | None = typer.Option(None, "--tail", "-n", min=0, help="Only the last N lines of each service (default: every line)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the run folders are"),
 ) -> None:
     """A run's service logs merged in time order, each line after its service's name (like `docker compose logs`)."""
@@ -1426,13 +1434,13 @@ def train_command(
     ),
     variant: str | None = typer.Option(None, "--variant", help="cso, cso-no-info, cso-no-mask, cso-sm, cso-vdm or gnn-baseline"),
     out: Path | None = typer.Option(None, "--out", help="Output folder (overrides out_dir)"),
-    seed: int | None = typer.Option(None, "--seed", help="Seed (overrides the config)"),
-    total_decisions: int | None = typer.Option(None, "--total-decisions", help="PPO budget in goal choices"),
-    time_limit: float | None = typer.Option(None, "--time-limit-s", help="Stop after this much wall time (0 = none)"),
+    seed: int | None = typer.Option(None, "--seed", help="Seed (overrides the config; default: the config's seed)"),
+    total_decisions: int | None = typer.Option(None, "--total-decisions", help="PPO budget in goal choices (default: the config's total_decisions)"),
+    time_limit: float | None = typer.Option(None, "--time-limit-s", help="Stop after this many seconds of wall time (0 = none; default: the config's time_limit_s)"),
     resume: Path | None = typer.Option(None, "--resume", help="checkpoint.pt to continue from"),
     device: str | None = typer.Option(None, "--device", help="auto, cpu, cuda or cuda:N"),
     init_from: str | None = typer.Option(None, "--init-from", help="Fine-tune: start from these weights (a run's <variant>.pt or checkpoint.pt, or 'shipped')"),
-    num_envs: int | None = typer.Option(None, "--num-envs", help="Parallel environments"),
+    num_envs: int | None = typer.Option(None, "--num-envs", help="Parallel environments (default: the config's num_envs)"),
     async_envs: bool | None = typer.Option(None, "--async-envs/--sync-envs", help="One process per environment, or all in this one"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
     tensorboard: bool | None = typer.Option(None, "--tensorboard/--no-tensorboard", help="Also write TensorBoard events into OUT/tensorboard (needs tensorboardX)"),
@@ -1502,7 +1510,7 @@ def collect_teacher_command(
     workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
     decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
     time_limit: float = typer.Option(0.0, "--time-limit-s", **_bounded(0.0, unit="s"), help="Each worker stops after this wall time (0 = none)"),
-    seed: int | None = typer.Option(None, "--seed", help="Worker i uses seed + i"),
+    seed: int | None = typer.Option(None, "--seed", help="Worker i uses seed + i (default: the config's seed)"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
@@ -1963,6 +1971,7 @@ def main() -> None:
     output whose reader left (a command's, ``--help``'s) ends as a shell tool does, with exit 141. ``up`` names itself
     for ``down`` first of all (``_name_starting_up_early``)."""
     global _starting_up
+    sys.argv[1:] = home_in_option_values(sys.argv[1:])
     try:
         _name_starting_up_early(sys.argv[1:])
         from cso_runtime.provenance import record_command_line  # noqa: PLC0415
@@ -1980,6 +1989,25 @@ def main() -> None:
             if early is not None:  # no `up` took it over: typer refused the command line, or `up` never ran
                 early[1]()
         _give_back_early_handlers()
+
+
+def home_in_option_values(args: list[str]) -> list[str]:
+    """``args`` with a ``~`` that starts the value of a ``--flag=~/...`` (or ``--flag=~``) made the home folder, as
+    the shell makes it in ``--flag ~/...``: the shell leaves the ``=`` form alone (bash, sh; zsh only with
+    magic_equal_subst), so ``eval --out=~/results`` wrote into a folder named ``~`` in the current one (which a
+    later ``rm -rf ~`` empties the home folder for). A value written otherwise (``--set key=~/x``, ``~user``) is
+    kept as typed, and so is everything after ``--``."""
+    import os  # noqa: PLC0415
+
+    expanded: list[str] = []
+    for k, arg in enumerate(args):
+        if arg == "--":
+            return [*expanded, *args[k:]]
+        flag, equals, value = arg.partition("=")
+        if arg.startswith("--") and equals and (value == "~" or value.startswith("~/")):
+            arg = f"{flag}={os.path.expanduser(value)}"
+        expanded.append(arg)
+    return expanded
 
 
 def _give_back_early_handlers() -> None:

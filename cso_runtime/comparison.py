@@ -161,9 +161,12 @@ def efficiency_by_scene(episodes: Iterable[Mapping[str, Any]], label: str = "", 
 
 def labelled(arg: str) -> tuple[str, Path]:
     """A command-line ``LABEL=FILE`` -> (LABEL, FILE); a plain FILE has the empty label. A folder stands for
-    the ``episodes.csv`` in it (an ``eval --out`` folder, or a run folder of ``up``)."""
+    the ``episodes.csv`` in it (an ``eval --out`` folder, or a run folder of ``up``). A file or folder whose own
+    name holds ``=`` (a sweep's ``lr=3e-4``, hydra's ``lr=0.001,seed=1``) is that path, unlabelled, where the
+    labelled reading names nothing: it was read as the label ``lr`` of a missing ``3e-4``."""
     label, sep, rest = arg.partition("=")
-    label, path = (label, Path(rest)) if sep and "/" not in label else ("", Path(arg))
+    as_labelled = bool(sep) and "/" not in label and (Path(rest).exists() or not Path(arg).exists())
+    label, path = (label, Path(rest)) if as_labelled else ("", Path(arg))
     return label, path / "episodes.csv" if path.is_dir() else path
 
 

@@ -1409,6 +1409,8 @@ def not_yaml_said(where: object, exc: Exception) -> str:
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping, with a clear error for a missing or malformed file or a key given twice."""
     p = Path(path)
+    if p.is_dir():  # not "not found": it is there, as a folder
+        raise ConfigError(f"{p} is a folder; give the YAML file (a config file is one .yaml file)")
     if not p.is_file():
         raise ConfigError(f"config file not found: {p}")
     try:
@@ -1416,6 +1418,8 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
             data = yaml_load(stream)
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(not_yaml_said(p, exc)) from None
+    except OSError as exc:  # another user's file (no read permission), an I/O error: one line, as a map YAML's, not a traceback
+        raise ConfigError(f"{p}: cannot read the config file ({exc.strerror or exc})") from None
     if data is None:
         return {}
     if not isinstance(data, dict):

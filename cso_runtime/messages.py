@@ -1358,7 +1358,12 @@ class ExploreResumeMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> ExploreResumeMsg:
         w = "explore_resume"
-        return cls(_bool(b, "resume", w), _str(b, "by", w, max_len=256), _str(b, "reason", w, max_len=1024), _num(b, "stamp_s", w, 0.0))
+        return cls(_bool(b, "resume", w), _str(b, "by", w, max_len=256), _str(b, "reason", w, max_len=MAX_RESUME_REASON_CHARS), _num(b, "stamp_s", w, 0.0))
+
+
+MAX_RESUME_REASON_CHARS = 1024
+"""The most characters of a pause's ``reason`` (``cso-runtime pause --reason``): a longer one is refused by every
+receiver, so ``pause`` refuses it before sending (it was sent, dropped by all, and the robot went on)."""
 
 
 ROS_RESUME_BY = "ros2 "

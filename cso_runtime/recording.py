@@ -545,7 +545,15 @@ def parse_speed(speed: float | str) -> float:
             raise ValueError(f"speed must be a positive number or 'max', got {speed!r}") from None
     if not (speed > 0):
         raise ValueError(f"speed must be a positive number or 'max', got {speed!r}")
+    if speed < MIN_REPLAY_SPEED:  # 1e-320: a wait past the platform's longest, an OverflowError traceback mid-replay
+        raise ValueError(f"speed must be at least {MIN_REPLAY_SPEED:g} (recording.MIN_REPLAY_SPEED: {1 / MIN_REPLAY_SPEED:g} times slower than recorded) or 'max', got {speed!r}")
     return float(speed)
+
+
+MIN_REPLAY_SPEED = 0.001
+"""The slowest ``replay --speed``: a second of the run in a thousand. ``1e-320`` made a wait between two messages
+longer than the platform's longest (``threading.TIMEOUT_MAX``): an OverflowError traceback mid-replay; ``1e-12``
+waited centuries in silence."""
 
 
 def running_robot(session: zenoh.Session, robots: Iterable[str], timeout_s: float = 1.0) -> str:

@@ -319,6 +319,12 @@ M_PER_PX_BOUND = Bound(0.0, MAX_M_PER_PX, "m", low_open=True, why="scenes.MAX_M_
 the one range of it, checked and said by ``config.Bound``."""
 
 
+MAX_GENERATED_PLANS = 100_000
+"""The most plans one ``generated:SCALE:N:SEED`` names: days of episodes at the smallest scale. A mistyped N
+(``generated:small:99999999:0``) took minutes and 7.6 GB listing its plans, ``--limit 1`` too, before any ran."""
+GENERATED_PLANS_BOUND = Bound(1, MAX_GENERATED_PLANS, why="scenes.MAX_GENERATED_PLANS")
+
+
 def spec_names_a_path(spec: str) -> bool:
     """Whether scene spec ``spec`` is a path (a folder, a PNG, a map YAML), not ``builtin`` nor ``generated:...``:
     what ``up`` resolves against the current folder, and compares so when given twice (``--scene`` and ``--set``)."""
@@ -342,7 +348,9 @@ def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.
             raise SceneError(f"bad generated spec {spec!r}: N and SEED must be integers") from None
         if n_i < 1 or seed_i < 0:
             raise SceneError(f"bad generated spec {spec!r}: N must be at least 1 and SEED at least 0")
-        refs = [SceneRef(f"gen_{scale}_{seed_i + k}", generated=(scale, seed_i + k)) for k in range(n_i)]
+        if (problem := GENERATED_PLANS_BOUND.problem(n_i)) is not None:
+            raise SceneError(f"bad generated spec {spec!r}: N {problem}")
+        refs = [SceneRef(f"gen_{scale}_{seed_i + k}", generated=(scale, seed_i + k)) for k in range(n_i if limit is None else min(n_i, limit))]
     else:
         p = builtin_scene_dir() if spec == "builtin" else Path(spec)
         if p.is_dir():

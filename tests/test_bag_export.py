@@ -721,3 +721,19 @@ def test_a_long_recording_of_many_episodes_keeps_every_step_time_of_the_last_epi
     assert timeline.stamp(3, 0.75, 1) == T0_NS + 750_000_000  # a late scan of it: its own time
     recent = episodes - 1  # the one left last: each step's time still
     assert timeline.at(3, recent) == T0_NS + round(((recent - 1) * episode_s + 0.75) * 1e9)
+
+
+def test_export_bag_refuses_a_map_period_too_long_to_count_in_nanoseconds(tmp_path: Path):
+    """``export-bag --map-period-s 1e308`` ended in ``OverflowError: cannot convert float infinity to integer`` (the
+    period made nanoseconds), exit 1. Refused now above ``bag_export.MAX_MAP_PERIOD_S`` in the flag's name, exit 2,
+    before any folder is made; the longest taken writes the first and the last map."""
+    from cso_runtime.bag_export import MAX_MAP_PERIOD_S
+
+    recording = tmp_path / "run.mcap"
+    write_recording(recording, "r0", episode(RobotKeys("r0"), 3, T0_NS, 1000))
+    cli = [sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording)]
+    done = subprocess.run([*cli, "--map-period-s", "1e308"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "--map-period-s must be at most 1e+09 s" in done.stderr and "Traceback" not in done.stderr, done.stderr
+    assert not (tmp_path / "run").exists()
+    done = subprocess.run([*cli, "--map-period-s", f"{MAX_MAP_PERIOD_S:g}"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "/map 2" in done.stdout, (done.stdout, done.stderr)

@@ -918,3 +918,89 @@ def test_a_train_set_hint_is_said_beside_another_set_the_check_refuses(tmp_path:
     code, out = train(tmp_path, "--set", "generated=1", "--set", "init_from=gone.pt")
     assert code == 2 and "write --set" not in out, out  # '1' is no scene spec either: no hint that fails in turn
     assert not train_runs
+
+
+def test_a_home_folder_in_a_flag_equals_value_is_the_home_folder(tmp_path: Path):
+    """``eval --out=~/results`` (the ``=`` form, where bash and sh leave the ``~`` alone) wrote into a folder named
+    ``~`` in the current folder, one a later ``rm -rf ~`` would take for the home folder. ``--flag=~/...`` is now
+    the home folder, as ``--flag ~/...`` is after the shell; other values are kept as typed."""
+    from cso_runtime.cli import home_in_option_values
+
+    home, work = tmp_path / "home", tmp_path / "work"
+    home.mkdir()
+    work.mkdir()
+    env = {**os.environ, "HOME": str(home), "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
+    r = subprocess.run([sys.executable, "-m", "cso_runtime", "eval", "--maps", "generated:small:1:0", "--out=~/results", "--dry-run"], capture_output=True, text=True, cwd=work, env=env, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert f"output: {home / 'results'}: a new folder" in r.stdout, r.stdout
+    assert not (work / "~").exists()
+    kept = ["--set", "out=~/x", "--set=key=~/x", "--robot=~user", "--reason=a~/b", "~/typed-alone", "--", "--out=~/after"]
+    assert home_in_option_values(kept) == kept
+    assert home_in_option_values(["--out=~", "-v", "--runs-dir=~/runs"]) == [f"--out={Path('~').expanduser()}", "-v", f"--runs-dir={Path('~/runs').expanduser()}"]
+
+
+def test_a_config_file_that_is_a_folder_or_unreadable_is_one_line_not_a_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``eval --config FOLDER`` said "config file not found" of a folder that is there; a config file the user may not
+    read (another user's, mode 0600) ended in a PermissionError traceback (``config.load_yaml`` caught YAML errors
+    only; a map YAML's reader said it in one line). Both are one line now, exit 2, naming the path."""
+    from cso_runtime.cli import app
+
+    folder = tmp_path / "configs"
+    folder.mkdir()
+    result = CliRunner().invoke(app, ["eval", "--maps", "generated:small:1:0", "--config", str(folder), "--dry-run"])
+    assert result.exit_code == 2 and f"{folder} is a folder; give the YAML file" in " ".join(result.output.split()), result.output
+    locked = tmp_path / "theirs.yaml"
+    locked.write_text("episode: {max_steps: 5}\n")
+    real_open = Path.open
+
+    def no_permission(self: Path, *args: object, **kwargs: object):  # root reads a 0000 file: refuse it as for a user
+        if self == locked:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_open(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Path, "open", no_permission)
+    result = CliRunner().invoke(app, ["eval", "--maps", "generated:small:1:0", "--config", str(locked), "--dry-run"])
+    assert result.exit_code == 2, result.exception
+    assert f"{locked}: cannot read the config file (Permission denied)" in " ".join(result.output.split()), result.output
+
+
+def test_every_number_flag_says_its_default():
+    """``eval --limit``, ``logs --tail``, ``train --total-decisions`` and others said what a number is but not what
+    it is when left out (all the scenes? every line? the recipe's?), where ``status --period`` shows ``[default:
+    1.0]``. Every option that takes a number says its default now: typer's ``[default: ...]`` or ``default`` in its
+    help."""
+    import typer
+
+    from cso_runtime.cli import app
+
+    silent = []
+    for name, command in typer.main.get_command(app).commands.items():
+        for param in command.params:
+            annotation = getattr(getattr(param, "type_descriptor", None), "annotation", None)
+            if param.param_type_name != "option" or annotation not in (int, float, int | None, float | None):
+                continue
+            shown = param.show_default is not False and param.default is not None
+            if not shown and "default" not in (param.help or ""):
+                silent.append(f"{name} {param.opts[0]}")
+    assert silent == [], silent
+
+
+def test_pause_says_a_reason_no_receiver_would_take_before_sending_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``pause --reason`` of 5,000 characters was sent, refused by the launcher and every service (a pause's reason
+    holds at most 1,024), and the robot went on exploring; a reason of a byte UTF-8 cannot carry (``$'\\xff'`` from a
+    Latin-1 terminal) ended in a UnicodeEncodeError traceback as it was sent. The first is refused before anything is
+    sent (exit 2, saying the limit), the second escaped (``\\udcff``), as every other text of a message is."""
+    from cso_runtime import status
+    from cso_runtime.cli import app
+    from cso_runtime.messages import MAX_RESUME_REASON_CHARS, ExploreResumeMsg, decode, encode
+
+    sent: list[str] = []
+    monkeypatch.setattr(status, "explore_resume_main", lambda connect, robot, runs_dir, resume, reason="": sent.append(reason) or 0)
+    r = CliRunner().invoke(app, ["pause", "--runs-dir", str(tmp_path), "--reason", "x" * (MAX_RESUME_REASON_CHARS + 1)])
+    assert r.exit_code == 2 and "--reason is 1,025 characters; at most 1,024" in " ".join(r.output.split()) and sent == [], r.output
+    r = CliRunner().invoke(app, ["pause", "--runs-dir", str(tmp_path), "--reason", "x" * MAX_RESUME_REASON_CHARS])
+    assert r.exit_code == 0 and len(sent[-1]) == MAX_RESUME_REASON_CHARS, r.output
+    r = CliRunner().invoke(app, ["pause", "--runs-dir", str(tmp_path), "--reason", "caf\udcff"])
+    assert r.exit_code == 0 and sent[-1] == "caf\\udcff", r.output
+    for reason in sent:  # what the receivers take
+        assert decode(encode(ExploreResumeMsg(False, "me@here", reason, 1.0))).reason == reason

@@ -439,3 +439,24 @@ def test_compare_says_why_of_a_baseline_where_no_method_has_an_episode_left_to_c
     assert r.exit_code == 1 and "no such map" not in r.stderr and "none of its 1 in these files has an m2/step" in r.stderr, r.output
     r = CliRunner().invoke(app, ["compare", str(write(tmp_path / "none.csv", []))])  # a file of no episode: said, not a baseline's fault
     assert r.exit_code == 1 and "error: these files hold no episode" in r.stderr, r.output
+
+
+def test_compare_takes_a_folder_whose_name_holds_an_equals_sign(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``compare lr=3e-4 lr=1e-3`` (the folders of a sweep, as hydra names its runs: ``lr=0.001,seed=1``) said "no such
+    file: 3e-4": the argument was read as LABEL=FILE. A path that exists whole is that path, unlabelled, where the
+    labelled reading names nothing; ``easy=FILE`` is still a label."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.comparison import labelled
+
+    monkeypatch.chdir(tmp_path)
+    for name, cso in (("lr=3e-4", 1.2), ("lr=1e-3,seed=1", 0.9)):
+        Path(name).mkdir()
+        write(Path(name) / "episodes.csv", rows("greedy-dist", "large", {"a": 1.0, "b": 1.0, "c": 1.0}) + rows(f"cso-{name[:2]}{cso}", "large", {"a": cso, "b": cso, "c": cso}))
+    assert labelled("lr=3e-4") == ("", Path("lr=3e-4/episodes.csv"))
+    assert labelled("easy=lr=3e-4") == ("easy", Path("lr=3e-4/episodes.csv"))
+    assert labelled("easy=nope.csv") == ("easy", Path("nope.csv"))  # neither exists: the label's, as before
+    r = CliRunner().invoke(app, ["compare", "lr=3e-4", "lr=1e-3,seed=1", "--json"])
+    assert r.exit_code == 0, r.output
+    assert sorted(row["method"] for row in json.loads(r.stdout)["comparisons"]) == ["cso-lr0.9", "cso-lr1.2"]

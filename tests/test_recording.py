@@ -918,3 +918,35 @@ def test_replay_upgrades_the_old_messages_of_a_run_that_raised_max_grid_cells(tm
             signal.signal(sig, handler)
     assert r.exit_code == 0, r.output
     assert stats.upgraded == {keys.topic("distance_map"): 1} and not stats.unreadable, (stats, r.output)
+
+
+def test_replay_and_record_say_a_bad_flag_with_no_run_too(tmp_path: Path):
+    """``replay FILE --speed abc`` with no current run said "no current run; give --connect ENDPOINT", and once a run
+    was found, that the speed was bad: two tries for two mistakes of one command line. So did ``record --out FILE``
+    of a recording that exists. The flags are said first now, with no run as with one (exit 2, nothing made)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    recording = tmp_path / "run.mcap"
+    _written_scans(recording, 1)
+    no_run = ["--runs-dir", str(tmp_path / "runs")]
+    r = CliRunner().invoke(app, ["replay", str(recording), "--speed", "abc", *no_run])
+    assert r.exit_code == 2 and "speed must be a positive number or 'max', got 'abc'" in r.output, r.output
+    r = CliRunner().invoke(app, ["replay", str(recording), "--topics", "scans", *no_run])
+    assert r.exit_code == 2 and "unknown topic(s) scans" in r.output, r.output
+    r = CliRunner().invoke(app, ["record", "--out", str(recording), *no_run])
+    assert r.exit_code == 2 and f"{recording} exists; give another --out" in r.output, r.output
+    assert not (tmp_path / "runs").exists()
+
+
+def test_replay_refuses_a_speed_too_slow_to_wait_for():
+    """``replay --speed 1e-320`` ended mid-replay in ``OverflowError: timestamp out of range for platform time_t`` (a
+    wait between two messages past the platform's longest); ``1e-12`` waited centuries. The slowest speed is
+    ``recording.MIN_REPLAY_SPEED``, said before anything is published (exit 2, as any bad --speed)."""
+    from cso_runtime.recording import MIN_REPLAY_SPEED
+
+    for slow in ("1e-320", "1e-12", str(MIN_REPLAY_SPEED / 2)):
+        with pytest.raises(ValueError, match=r"speed must be at least 0.001 \(recording.MIN_REPLAY_SPEED: 1000 times slower than recorded\) or 'max'"):
+            parse_speed(slow)
+    assert parse_speed(str(MIN_REPLAY_SPEED)) == MIN_REPLAY_SPEED and parse_speed("inf") == float("inf")

@@ -636,3 +636,24 @@ def test_scenes_json_writes_figures_rounded_not_a_float_sums_digits():
     floats = re.findall(r"-?\d+\.(\d+)", r.stdout)
     assert floats and max(len(decimals) for decimals in floats) <= WRITTEN_DECIMALS, r.stdout
     assert rows[0]["start"]["x_m"] == 4.725 and rows[0]["free_area_m2"] == 21.9225, rows[0]
+
+
+def test_a_mistyped_count_of_generated_plans_is_refused_at_once(monkeypatch: pytest.MonkeyPatch):
+    """``scenes generated:small:99999999:0 --limit 1`` (a few zeros too many) listed all 10^8 plans before taking the
+    first: a minute and 7.6 GB, ``eval --dry-run`` too, on a shared machine. N is bounded
+    (``scenes.MAX_GENERATED_PLANS``), said at once, exit 2; under the bound, ``--limit`` lists only its plans."""
+    from typer.testing import CliRunner
+
+    from cso_runtime import scenes
+    from cso_runtime.cli import app
+    from cso_runtime.scenes import MAX_GENERATED_PLANS, SceneError, resolve_scenes
+
+    with pytest.raises(SceneError, match=r"N must be in \[1, 100,000\] \(scenes.MAX_GENERATED_PLANS\), got 99,999,999"):
+        resolve_scenes("generated:small:99999999:0", limit=1)
+    made: list[object] = []
+    real = scenes.SceneRef
+    monkeypatch.setattr(scenes, "SceneRef", lambda *args, **kwargs: made.append(args) or real(*args, **kwargs))
+    refs = resolve_scenes(f"generated:small:{MAX_GENERATED_PLANS}:0", limit=2)
+    assert [ref.name for ref in refs] == ["gen_small_0", "gen_small_1"] and len(made) == 2
+    r = CliRunner().invoke(app, ["scenes", "generated:small:99999999:0", "--limit", "1"])
+    assert r.exit_code == 2 and "N must be in [1, 100,000]" in " ".join(r.output.split()), r.output
