@@ -426,16 +426,17 @@ def test_frontiers_rebuild_the_same_observation_and_decision():
     np.testing.assert_array_equal(rebuilt.distance_map(), obs.distance_m)  # computed again: the same values
 
 
-def test_the_planner_reads_the_verdict_and_its_two_grids_and_validates_those():
+def test_the_planner_reads_the_verdict_and_its_three_grids_and_validates_those():
     """``PlannerFrontiersMsg`` decodes what the planner uses (the grid it plans on, with the pose and
-    geometry); a bad grid it reads is rejected, a bad one it does not read is the policy's to reject."""
+    geometry; the obstacles and the seen cells it checks before reversing); a bad grid it reads is rejected, a bad one it does not read is the policy's to reject."""
     obs = _observation()
     msg = frontiers_from_observation(3, "no_goal", obs, 4.5)
     view = decode(encode(msg), PlannerFrontiersMsg)
     assert isinstance(view, PlannerFrontiersMsg) and view.decide and (view.step, view.reason) == (3, "no_goal")
-    assert view.pose == obs.pose and view.geometry == obs.geometry and set(view.arrays) == {"traversable", "occupied"}
+    assert view.pose == obs.pose and view.geometry == obs.geometry and set(view.arrays) == {"traversable", "occupied", "explored"}
     np.testing.assert_array_equal(view.arrays["traversable"], obs.traversable)
     np.testing.assert_array_equal(view.arrays["occupied"], obs.occupied)  # checked before the robot reverses
+    np.testing.assert_array_equal(view.arrays["explored"], obs.explored)  # unknown behind the robot: no reverse
     keep = decode(encode(FrontiersMsg(4, False)), PlannerFrontiersMsg)
     assert (keep.step, keep.decide) == (4, False)
     body = _body(msg)
