@@ -185,7 +185,8 @@ def interrupt_on_sigterm(wait_on_second: bool = False, stop_deadline_s: float | 
         # processes is not imported at module level as it costs the CLI's start-up (multiprocessing, concurrent.futures).
         from cso_runtime.processes import end_overdue_stop  # noqa: PLC0415
 
-    stop_signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    # SIGHUP not under nohup: processes.stop_signals, not imported here (its cost, above)
+    stop_signals = (signal.SIGINT, signal.SIGTERM) + (() if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN else (signal.SIGHUP,))
     received = 0
 
     def end_at_once(signum: int, frame: object) -> None:
@@ -555,7 +556,7 @@ def record_command(
 
     from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
     from cso_runtime.keys import KeyExprError, check_robot_id  # noqa: PLC0415
-    from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
+    from cso_runtime.processes import set_from_signal_handler, stop_signals  # noqa: PLC0415
     from cso_runtime.recording import names_a_folder, record, recording_path  # noqa: PLC0415
     from cso_runtime.status import AmbiguousRobotError, RunTarget, client_transport, endpoints_from_run_file, robot_at_endpoint  # noqa: PLC0415
     from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
@@ -581,7 +582,7 @@ def record_command(
         _fail(f"{path} exists; give another --out, or remove it first", 2)
     output_dir_or_exit(path.parent, f"--out {out}: its folder" if out is not None else "the recordings folder")  # before connecting, as `up --record-out`
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
+    for sig in stop_signals():  # SIGHUP: its terminal closed (not under nohup)
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))
     try:
         with open_session(client_transport(endpoints, zenoh_config_file)) as session:
@@ -612,7 +613,7 @@ def replay_command(
 
     from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
     from cso_runtime.keys import TOPICS  # noqa: PLC0415
-    from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
+    from cso_runtime.processes import set_from_signal_handler, stop_signals  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, ReplayRefused, check_chunks, parse_speed, replay  # noqa: PLC0415
     from cso_runtime.status import RunTarget, client_transport, endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
@@ -638,7 +639,7 @@ def replay_command(
         _fail("no current run; give --connect ENDPOINT", 2)
     _endpoints_or_exit(endpoints, zenoh_config_file)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
+    for sig in stop_signals():  # SIGHUP: its terminal closed (not under nohup)
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))
     _read_grids_of_any_run()  # it upgrades a recording's old payloads: a run's grids, whatever bound that run had
     try:

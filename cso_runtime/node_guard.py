@@ -111,8 +111,10 @@ def signal_escaped(sig: int) -> None:
 def on_stop_signal(sig: int, stop_timeout_s: float) -> None:
     """The launcher's SIGINT or SIGTERM to the group (or the kernel's, the launcher gone): passed on to what escaped the
     group; after SIGTERM, SIGKILL to it half ``stop_timeout_s`` later, before the launcher's SIGKILL to the group (which
-    takes the guard with it)."""
+    takes the guard with it). Each with a SIGCONT, as the launcher's to the group (``supervision.stop_children``): a stopped
+    one acts on its signal only once continued, else it waited, stopped, to be killed."""
     signal_escaped(sig)
+    signal_escaped(signal.SIGCONT)
     if sig == signal.SIGTERM and signal.getitimer(signal.ITIMER_REAL)[0] == 0:
         signal.signal(signal.SIGALRM, lambda *_: signal_escaped(signal.SIGKILL))
         signal.setitimer(signal.ITIMER_REAL, stop_timeout_s / 2)

@@ -45,12 +45,20 @@ def set_from_signal_handler(event: threading.Event) -> None:
     _thread.start_new_thread(event.set, ())
 
 
+def stop_signals() -> tuple[int, ...]:
+    """The signals a long command stops on: SIGINT (Ctrl-C), SIGTERM, and SIGHUP (its terminal closed) unless it was
+    started with SIGHUP ignored: ``nohup cso-runtime up &`` asked to outlive its terminal, and a handler put in over the
+    ignore stopped the run when the terminal closed (the shell passes its SIGHUP on to every job). SIGINT is handled
+    even where ignored: a shell without job control starts ``cmd &`` with it ignored, and ``down`` stops with it."""
+    return (signal.SIGINT, signal.SIGTERM) + (() if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN else (signal.SIGHUP,))
+
+
 def stop_on_signals(event: threading.Event) -> dict[int, Any]:
-    """SIGINT (Ctrl-C), SIGTERM and SIGHUP (its terminal closed) set ``event`` instead of raising or killing: the
+    """SIGINT (Ctrl-C), SIGTERM and SIGHUP (its terminal closed; not under nohup: ``stop_signals``) set ``event`` instead of raising or killing: the
     launcher (and ``up`` from its first line) acts on the stop where it can stop cleanly, never with a
     KeyboardInterrupt traceback in the middle of opening its router or writing its run file. Returns the handlers
     it replaced, for ``restore_signal_handlers`` (a command run inside another program gives them back)."""
-    return {sig: signal.signal(sig, lambda signum, frame: set_from_signal_handler(event)) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    return {sig: signal.signal(sig, lambda signum, frame: set_from_signal_handler(event)) for sig in stop_signals()}
 
 
 class StopRequested(BaseException):
@@ -73,7 +81,7 @@ def stop_raises(event: threading.Event) -> Iterator[None]:
 
     previous: dict[int, Any] = {}  # filled one by one: a signal between two installs finds the handlers to put back
     try:
-        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        for sig in stop_signals():
             previous[sig] = signal.signal(sig, handler)
         if event.is_set():
             raise StopRequested("a stop before the check")

@@ -253,6 +253,54 @@ def test_the_guard_kills_a_daemon_that_left_its_group_and_ignores_sigterm_before
         assert guard.poll() is None, "the guard (its node ignores SIGTERM) still runs: the daemon's end is its doing"
 
 
+STOPPED_DAEMON_NODE = """
+import os, signal, sys, time
+signal.signal(signal.SIGTERM, signal.SIG_IGN)  # the node stays: the guard with it
+first = os.fork()
+if first == 0:
+    os.setsid()
+    if os.fork() == 0:
+        signal.signal(signal.SIGTERM, lambda *_: (open(sys.argv[1], "w").write("clean"), os._exit(0)))
+        print(os.getpid(), flush=True)
+        while True:
+            time.sleep(1)
+    os._exit(0)
+os.waitpid(first, 0)
+time.sleep(600)
+"""
+"""A node that ignores SIGTERM and starts a daemon (a double fork, ``setsid``) that stops cleanly on SIGTERM, writing
+"clean" to ``argv[1]``; the daemon's pid on stdout."""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a child subreaper is Linux's")
+def test_the_guard_continues_a_stopped_daemon_it_passes_a_stop_signal_on_to(tmp_path: Path):
+    """The launcher sends each stop signal with a SIGCONT to the guard's group (``stop_children``): a stopped process acts
+    on its signal only once continued. A stopped daemon of the node's, out of the group, got the guard's SIGTERM and no
+    SIGCONT: it waited, stopped, to be SIGKILLed half ``--stop-timeout`` later, its clean stop never run."""
+    from cso_runtime.supervision import process_state
+
+    done = tmp_path / "daemon.done"
+    guard = subprocess.Popen(
+        [*python_module_argv("cso_runtime.node_guard"), "--stop-timeout", "1", "--", sys.executable, "-c", STOPPED_DAEMON_NODE, str(done)],
+        cwd=tmp_path, stdout=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    daemon = None
+    try:
+        assert guard.stdout is not None
+        daemon = int(guard.stdout.readline())
+        os.kill(daemon, signal.SIGSTOP)
+        wait_for(lambda: process_state(daemon) == "T", HANG_DEADLINE_S, "the daemon to be stopped", period_s=0.01)
+        os.killpg(guard.pid, signal.SIGTERM)  # the launcher's second stage, as stop_children sends it
+        os.killpg(guard.pid, signal.SIGCONT)
+        wait_for(lambda: not pid_alive(daemon), HANG_DEADLINE_S, "the daemon to stop", period_s=0.01)
+        assert done.exists() and done.read_text() == "clean", "the stopped daemon was killed, not continued to stop cleanly"
+    finally:
+        os.killpg(guard.pid, signal.SIGKILL)
+        guard.wait(10)
+        if daemon is not None and pid_alive(daemon):
+            os.kill(daemon, signal.SIGKILL)
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a child subreaper is Linux's")
 def test_the_guard_reaps_an_orphaned_daemon_of_its_node_that_exits(tmp_path: Path):
     """A subreaper inherits the node's orphans: one that exits is the guard's to reap, or it stays a zombie under it."""

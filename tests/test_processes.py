@@ -242,3 +242,32 @@ def test_an_overdue_stop_ends_even_where_saying_so_blocks(blocks):
         if child_pid is not None:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(child_pid, signal.SIGKILL)
+
+
+def test_a_command_started_under_nohup_keeps_sighup_ignored():
+    """``nohup cso-runtime up &`` asks the run to outlive its terminal, but ``up`` put its stop handler in over the
+    ignored SIGHUP: closing the terminal (the shell passes its SIGHUP on to every job) stopped the run ("interrupted").
+    An ignored SIGHUP stays ignored (``stop_signals``); SIGINT and SIGTERM stop the command as ever, even where SIGINT was
+    ignored (a shell without job control starts ``cmd &`` so, and ``down`` stops a launcher with it)."""
+    import signal
+    import threading
+
+    from cso_runtime.processes import restore_signal_handlers, stop_on_signals, stop_raises
+
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        previous = stop_on_signals(threading.Event())
+        assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+        assert callable(signal.getsignal(signal.SIGINT)) and callable(signal.getsignal(signal.SIGTERM))
+        restore_signal_handlers(previous)
+        with stop_raises(threading.Event()):
+            assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN and callable(signal.getsignal(signal.SIGTERM))
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)  # a terminal's: SIGHUP stops the command
+        previous = stop_on_signals(threading.Event())
+        assert callable(signal.getsignal(signal.SIGHUP))
+        restore_signal_handlers(previous)
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
