@@ -100,14 +100,21 @@ def descend_path(distance_m: np.ndarray, geometry: GridGeometry, goal_cell: tupl
         nb = _NEIGHBOURS + (y, x)
         ok = (nb[:, 0] >= 0) & (nb[:, 0] < ny) & (nb[:, 1] >= 0) & (nb[:, 1] < nx)
         nb = nb[ok]
-        values = distance_m[nb[:, 0], nb[:, 1]]
-        # A diagonal's two sides (same row, same column) lie on the grid whenever the diagonal does.
-        squeezed = (nb[:, 0] != y) & (nb[:, 1] != x) & ~np.isfinite(distance_m[nb[:, 0], x]) & ~np.isfinite(distance_m[y, nb[:, 1]])
-        values = np.where(squeezed, np.inf, values)
-        k = int(np.argmin(values))
+        values = distance_m[nb[:, 0], nb[:, 1]]  # a copy: a squeezed diagonal is struck out of it below
+        while True:
+            k = int(np.argmin(values))
+            if not values[k] < here:  # no step down left (every one struck out, too)
+                break
+            ky, kx = int(nb[k, 0]), int(nb[k, 1])
+            # A diagonal's two sides (same row, same column) lie on the grid whenever the diagonal does. Checked on
+            # the step chosen only (a squeezed one struck out, the next best taken): the same step as striking every
+            # squeezed diagonal out first, without that check's arrays on each of a path's cells.
+            if not (ky != y and kx != x and not math.isfinite(distance_m[ky, x]) and not math.isfinite(distance_m[y, kx])):
+                break
+            values[k] = np.inf
         if not values[k] < here:
             break
-        y, x = int(nb[k, 0]), int(nb[k, 1])
+        y, x = ky, kx
         cells.append((y, x))
     arr = np.array(cells[::-1])
     xs, ys = geometry.cell_to_world(arr[:, 0], arr[:, 1])
