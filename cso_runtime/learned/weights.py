@@ -18,7 +18,6 @@ import collections
 import dataclasses
 import io
 import json
-import math
 import os
 import pickle
 import zipfile
@@ -27,7 +26,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from cso_runtime.config import LIDAR_FOVS_DEG, ConfigError, FrontierConfig, MaskConfig, SensorConfig, setting_text
+from cso_runtime.config import LIDAR_FOVS_DEG, ConfigError, FrontierConfig, MaskConfig, SensorConfig, finite_number, setting_text
 from cso_runtime.outputs import file_sha256
 
 WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
@@ -446,15 +445,10 @@ def checkpoint_frontier(ckpt: Mapping[str, Any], graph_window_m: float) -> Front
 
 
 def _finite(value: Any) -> float | None:
-    """``value`` as a finite float where it is a number (not a bool) that is one; None otherwise (an int too large for a
-    float, NaN, infinity: not a setting ``train`` wrote)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None
-    try:
-        number = float(value)
-    except OverflowError:
-        return None
-    return number if math.isfinite(number) else None
+    """``value`` as a finite float where it is a number (not a bool, not a text) that is one; None otherwise (an int
+    too large for a float, NaN, infinity: not a setting ``train`` wrote). ``config.finite_number``, less its reading
+    of texts: a record holds numbers."""
+    return None if isinstance(value, str) else finite_number(value)
 
 
 CHECKPOINT_HEADER_MAX_BYTES = 256 * 1024
