@@ -223,11 +223,12 @@ sleeps ``argv[1]`` seconds; the daemon's pid on stdout."""
 
 
 @contextmanager
-def guarded_escaping_node(tmp_path: Path, daemon_sleep_s: float) -> Iterator[tuple[subprocess.Popen, int]]:
-    """The guard (``--stop-timeout 1``, a session of its own as the launcher starts it) running ``ESCAPING_NODE``; yields
-    it and its daemon's pid; SIGKILL to its group, as the launcher's last stop signal, and to the daemon afterwards."""
+def guarded_escaping_node(tmp_path: Path, node_arg: object, node: str = ESCAPING_NODE) -> Iterator[tuple[subprocess.Popen, int]]:
+    """The guard (``--stop-timeout 1``, a session of its own as the launcher starts it) running ``node`` (its daemon's
+    pid on stdout) with ``node_arg`` (``ESCAPING_NODE``'s: how long its daemon sleeps); yields the guard and its
+    daemon's pid; SIGKILL to its group, as the launcher's last stop signal, and to the daemon afterwards."""
     guard = subprocess.Popen(
-        [*python_module_argv("cso_runtime.node_guard"), "--stop-timeout", "1", "--", sys.executable, "-c", ESCAPING_NODE, str(daemon_sleep_s)],
+        [*python_module_argv("cso_runtime.node_guard"), "--stop-timeout", "1", "--", sys.executable, "-c", node, str(node_arg)],
         cwd=tmp_path, stdout=subprocess.PIPE, text=True, start_new_session=True,
     )  # fmt: skip
     daemon = None
@@ -280,25 +281,13 @@ def test_the_guard_continues_a_stopped_daemon_it_passes_a_stop_signal_on_to(tmp_
     from cso_runtime.supervision import process_state
 
     done = tmp_path / "daemon.done"
-    guard = subprocess.Popen(
-        [*python_module_argv("cso_runtime.node_guard"), "--stop-timeout", "1", "--", sys.executable, "-c", STOPPED_DAEMON_NODE, str(done)],
-        cwd=tmp_path, stdout=subprocess.PIPE, text=True, start_new_session=True,
-    )  # fmt: skip
-    daemon = None
-    try:
-        assert guard.stdout is not None
-        daemon = int(guard.stdout.readline())
+    with guarded_escaping_node(tmp_path, done, STOPPED_DAEMON_NODE) as (guard, daemon):
         os.kill(daemon, signal.SIGSTOP)
         wait_for(lambda: process_state(daemon) == "T", HANG_DEADLINE_S, "the daemon to be stopped", period_s=0.01)
         os.killpg(guard.pid, signal.SIGTERM)  # the launcher's second stage, as stop_children sends it
         os.killpg(guard.pid, signal.SIGCONT)
         wait_for(lambda: not pid_alive(daemon), HANG_DEADLINE_S, "the daemon to stop", period_s=0.01)
         assert done.exists() and done.read_text() == "clean", "the stopped daemon was killed, not continued to stop cleanly"
-    finally:
-        os.killpg(guard.pid, signal.SIGKILL)
-        guard.wait(10)
-        if daemon is not None and pid_alive(daemon):
-            os.kill(daemon, signal.SIGKILL)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a child subreaper is Linux's")
