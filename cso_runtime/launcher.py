@@ -525,7 +525,10 @@ class Launcher:
             },
         }
         text = json.dumps(info, indent=2)
-        for path in (self.run_dir / "run.json", self.run_dir.parent / CURRENT_RUN):
+        # The current-run file first: `up --detach` says "started" once run.json names the services and endpoints, and a
+        # script's `status` right after reads current.json, which was then still the "starting" one with no endpoints
+        # (its client had nothing to connect to) when the launcher was slow to write it (a busy host).
+        for path in (self.run_dir.parent / CURRENT_RUN, self.run_dir / "run.json"):
             try:
                 write_text_atomic(path, text)
             except OSError as exc:  # a full disk: the run goes on, `status` and `down` go by the file written before

@@ -2378,6 +2378,35 @@ def test_a_restart_after_the_episode_ended_keeps_its_end_state_in_the_run_file(t
     assert json.loads((launcher.run_dir / "run.json").read_text())["state"] == "done"
 
 
+def test_the_current_run_file_is_written_before_run_json_which_up_detach_waits_for(tmp_path, monkeypatch):
+    """``up --detach`` says "started" once run.json names the services and the router's endpoints; run.json was written
+    first, and a script's ``status`` right after could read the current-run file as it still was ("starting", no
+    endpoints: "client mode needs at least one --connect endpoint", twice in one CI run). Whatever run.json says, the
+    current-run file said it first."""
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "runs" / "run")
+    launcher.run_dir.mkdir(parents=True)
+    seen: list[tuple[str, bool]] = []
+    write = launcher_module.write_text_atomic
+
+    def checked(path: Path, text: str) -> None:
+        if path.name == "run.json":
+            current = launcher.run_dir.parent / "current.json"
+            seen.append((path.name, current.exists() and current.read_text() == text))
+        write(path, text)
+
+    monkeypatch.setattr(launcher_module, "write_text_atomic", checked)
+    launcher.write_run_file("starting")
+    launcher.endpoints = ["tcp/127.0.0.1:7447"]
+    launcher.write_run_file("running")
+    assert seen == [("run.json", True), ("run.json", True)]
+    assert json.loads((launcher.run_dir / "run.json").read_text())["endpoints"] == ["tcp/127.0.0.1:7447"]
+
+
 def _fake_result(method: str = "greedy-dist", steps: int = 10):
     from cso_runtime.messages import EpisodeResultMsg
 
