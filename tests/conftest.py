@@ -71,6 +71,23 @@ def default_grid_bound() -> Iterator[None]:
     set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+@pytest.fixture(autouse=True)
+def own_stop_handlers() -> Iterator[None]:
+    """Each test ends with the stop signals' handlers it started with. A command run in the test's process (CliRunner,
+    ``cli.main``) installs its own (``cli.interrupt_on_sigterm``), and they stayed for the rest of the worker's tests:
+    ``train``'s bounds its stop, so a later test that sends its own process SIGINT (Ctrl-C as ``up --detach`` waits)
+    armed a watch that ended the pytest worker 60 s later (``processes.end_overdue_stop``: ``os._exit(130)``), in the
+    middle of whatever test then ran ("node down: Not properly terminated", in three of four CI runs)."""
+    kept = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    yield
+    for sig, handler in kept.items():
+        if handler is not None and signal.getsignal(sig) is not handler:
+            signal.signal(sig, handler)
+
+
 class TerminalFile(io.StringIO):
     """A fake terminal for rich's console: its text kept as a StringIO's, and ``isatty()`` true, as
     ``live_view.writes_to_a_terminal`` tells a terminal (``force_terminal`` alone no longer makes one: a file under
