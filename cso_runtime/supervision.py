@@ -35,14 +35,13 @@ def python_module_argv(module: str) -> list[str]:
     return [sys.executable, "-c", f"import runpy, sys; del sys.path[0]; runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"]
 
 
-OWN_GROUP: dict[str, Any] = {"process_group": 0} if sys.version_info >= (3, 11) else {"start_new_session": True}
-"""How a service is spawned: leading a process group of its own (its helpers with it: ``signal_group``, and no Ctrl-C
-or Ctrl-Z of ``up``'s terminal reaches it), in the launcher's session. Not a session of its own: a group whose
-parent outside it is in its session becomes orphaned when that parent dies, and the kernel then sends a stopped
-member SIGHUP and SIGCONT (POSIX orphaned process groups), so a service stopped (SIGSTOP, a debugger) when its
-launcher is killed continues and stops on its launcher's death (``services.common``) rather than stay stopped for
-good, an orphan no one is left to continue or kill. Python 3.10 has no ``process_group`` (``preexec_fn`` is unsafe
-beside the launcher's threads): a session of its own there."""
+OWN_GROUP: dict[str, Any] = {"start_new_session": True}
+"""How a service is spawned: leading a session (and so a process group) of its own, its helpers with it
+(``signal_group``), out of the reach of Ctrl-C or Ctrl-Z of ``up``'s terminal. Not a group in the launcher's session:
+where the kernel schedules by session (``/proc/sys/kernel/sched_autogroup_enabled``), five services in one session
+with their launcher made the lockstep chain about 5 % slower on the middle scene (docs/experiments/runtime-overhead.md).
+A service stopped (SIGSTOP, a debugger) when its launcher is killed is continued by the kernel all the same: its
+parent-death signal is SIGCONT (``services.common``), and it then stops on its launcher's death as a running one does."""
 
 OWN_SESSION: dict[str, Any] = {"start_new_session": True}
 """How a command node's guard is spawned: a session of its own, without the terminal of a foreground ``up``, which a

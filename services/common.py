@@ -482,7 +482,15 @@ def _install_stop_handlers(stop: threading.Event, service: Service | None = None
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
-    signal.signal(signal.SIGHUP, handler)  # the kernel's, with SIGCONT, to a stopped service its launcher's death orphaned (supervision.OWN_GROUP)
+    signal.signal(signal.SIGHUP, handler)  # its terminal's (a service started by hand)
+
+    def continued(signum: int, _frame: Any) -> None:
+        # The kernel's on the launcher's death (``_die_with_launcher``): a stopped service is continued by it, a running
+        # one only hears it. Gone: stop as on SIGTERM; not yet seen gone: the exit-once-orphaned thread looks again.
+        if launcher_gone() is not None:
+            handler(signal.SIGTERM, _frame)
+
+    signal.signal(signal.SIGCONT, continued)
 
 
 LOOP_STUCK_S = 5.0
@@ -1151,13 +1159,15 @@ def _exit_once_orphaned(name: str, stop: threading.Event) -> None:
 
 
 def _die_with_launcher(name: str, stop: threading.Event) -> None:
-    """When started by a launcher, get SIGTERM if it dies (Linux), and exit ``ORPHAN_STOP_S`` later if that did not
-    stop the service, so no service outlives it."""
+    """When started by a launcher, get SIGCONT if it dies (Linux; the stop handlers' ``continued`` then stops the
+    service as SIGTERM does, and a service stopped by SIGSTOP or a debugger is continued first: SIGTERM would wait
+    behind the stop for good), and exit ``ORPHAN_STOP_S`` later if that did not stop the service, so no service
+    outlives it."""
     parent = os.environ.get(PARENT_PID_ENV)
     if not parent or not parent.isdigit():
         return
     threading.Thread(target=_exit_once_orphaned, args=(name, stop), daemon=True, name="exit-once-orphaned").start()
-    if not signal_on_parent_death(signal.SIGTERM):
+    if not signal_on_parent_death(signal.SIGCONT):
         return
     if os.getppid() != int(parent):
         os.kill(os.getpid(), signal.SIGTERM)

@@ -59,7 +59,7 @@ from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.status import query_status, render_table, save_map_main, status_main, status_of
-from cso_runtime.supervision import OWN_GROUP, pid_alive, python_module_argv
+from cso_runtime.supervision import pid_alive, python_module_argv
 from cso_runtime.transport import (
     UNREACHABLE,
     ZENOH_CONFIG_ENV,
@@ -5518,16 +5518,12 @@ def test_a_killed_launchers_services_stop_at_once_and_each_log_says_why(tmp_path
         assert r.returncode == 0 and [x["state"] for x in json.loads(r.stdout)] == ["launcher died"], r.stdout
 
 
-@pytest.mark.skipif(
-    "process_group" not in OWN_GROUP,
-    reason="Python 3.10 (requires-python >= 3.10) has no Popen(process_group=): a service leads a session of its own there (supervision.OWN_GROUP), which the launcher's death does not orphan",
-)
 def test_a_stopped_service_does_not_outlive_its_killed_launcher(tmp_path):
     """A service stopped (SIGSTOP, a debugger, Ctrl-Z of its own) when its launcher is SIGKILLed cannot act on the
     kernel's SIGTERM (PR_SET_PDEATHSIG) nor on its own orphan check: it stayed stopped for good, an orphan holding its
-    memory and its place on the network, with no one left to continue or kill it. Each service now leads a process
-    group in its launcher's session, so the launcher's death orphans that group and the kernel sends a stopped one
-    SIGHUP and SIGCONT (POSIX orphaned process groups): it continues, and stops as its siblings do."""
+    memory and its place on the network, with no one left to continue or kill it. A service's parent-death signal is
+    now SIGCONT (its handler stops it when its launcher is gone), which continues a stopped one: it stops as its
+    siblings do."""
     from cso_runtime.supervision import process_state
 
     with detached_run(tmp_path, min_step_period_s=0.25) as (runs, status):
