@@ -297,17 +297,23 @@ def _warn_of_unfed_inputs(prof: Profile) -> None:
 def _warn_of_weights_trained_otherwise(prof: Profile) -> None:
     """``up``: say when the policy service's learned weights were trained with another field of view than the
     profile's sensor (``--weights`` of a run of ``configs/train.yaml``, 360 degrees, on the LIMO's 180), or under other
-    stuck-mask settings than the profile's (``--set exploration.masks.KEY=VALUE`` runs them as trained), as eval does."""
+    stuck-mask settings than the profile's (``--set exploration.masks.KEY=VALUE`` runs them as trained), as eval does;
+    and with other frontier settings that the policy service runs anyway and warns of as it starts (another
+    ``frontier.min_cluster_size_m``: ``weights.INPUT_CHECKS``), in its words, here before anything starts rather than
+    in its log alone (``weights.recorded_input_verdict``; those it refuses, ``up`` refuses first: ``Profile.validate``)."""
     from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
 
     if "policy" in prof.services and prof.policy_method in LEARNED_METHODS:
-        from cso_runtime.learned.weights import mask_mismatches, sensor_mismatches  # noqa: PLC0415
+        from cso_runtime.learned.weights import mask_mismatches, recorded_input_verdict, sensor_mismatches  # noqa: PLC0415
 
         exploration = prof.exploration_config()
         for mismatch in sensor_mismatches([prof.policy_method], exploration.sensor, eval_hint=False):
             typer.echo(f"warning: {mismatch} (a policy does best with the sensor it was trained with)", err=True)
         for mismatch in mask_mismatches([prof.policy_method], exploration.masks, exploration.sensor, prefix="exploration."):
             typer.echo(f"warning: {mismatch} (a policy does best with the masks it was trained under)", err=True)
+        if "policy" not in {*prof.own_services(), *prof.command_nodes()}:  # the built-in policy service loads the weights
+            for said in recorded_input_verdict(prof.policy_method, exploration.frontier, exploration.sensor).warned:
+                typer.echo(f"warning: {said}", err=True)
 
 
 def _warn_of_a_watchdog_within_a_step(prof: Profile) -> None:

@@ -778,6 +778,45 @@ def test_up_refuses_weights_trained_with_another_entropy_window_before_it_starts
         load_profile("sim", {"method": "cso"}, settings=wider)
 
 
+def test_up_says_the_policys_start_warnings_on_its_terminal_before_it_starts_anything(tmp_path: Path, monkeypatch):
+    """The policy service warns as it starts of a run setting other than its weights were trained with that it runs
+    anyway (another ``frontier.min_cluster_size_m``: ``weights.INPUT_CHECKS``), in its own log only
+    (runs/<run>/logs/policy.log): ``up``, foreground or ``--detach``, said nothing on its terminal. It now says the
+    service's very lines (``weights.recorded_input_verdict``: the ``input_verdict`` of the policy's load) on stderr
+    before the launcher starts anything; nothing where the settings match, or where a baseline decides."""
+    from typer import echo
+    from typer.testing import CliRunner
+
+    from cso_runtime import launcher
+    from cso_runtime.cli import app
+    from cso_runtime.policies import make_policy
+    from cso_runtime.run_profile import load_profile
+    from tests.conftest import unset_weights_env
+
+    unset_weights_env(monkeypatch)
+    other = {"exploration.frontier.min_cluster_size_m": 0.5}
+    exploration = load_profile("sim", {"method": "cso"}, settings=other)[0].exploration_config()
+    service = make_policy("cso", exploration.masks, seed=0, sensor=exploration.sensor, frontier=exploration.frontier)
+    service_says = list(getattr(service, "input_warnings", ()))  # what services/policy.py logs at its start
+    assert len(service_says) == 1 and "frontier.min_cluster_size_m 0.3 m, this run's is 0.5 m" in service_says[0], service_says
+
+    def started(*args: object, **kwargs: object) -> object:  # run_foreground (live=...) or start_detached: nothing starts
+        echo("LAUNCHER STARTS", err=True)
+        return (0, "started") if "live" not in kwargs else 0
+
+    monkeypatch.setattr(launcher, "run_foreground", started)
+    monkeypatch.setattr(launcher, "start_detached", started)
+    up = ["up", "--profile", "sim", "--method", "cso", "--runs-dir", str(tmp_path / "runs"), "--set", "exploration.frontier.min_cluster_size_m=0.5"]
+    for how in ([], ["--no-live"], ["--detach"]):
+        r = CliRunner().invoke(app, [*up, *how])
+        assert r.exit_code == 0, r.output
+        warning = f"warning: {service_says[0]}\n"
+        assert warning in r.output and r.output.index(warning) < r.output.index("LAUNCHER STARTS"), r.output
+    for quiet in (["--method", "cso"], ["--method", "greedy-dist", "--set", "exploration.frontier.min_cluster_size_m=0.5"]):
+        r = CliRunner().invoke(app, ["up", "--profile", "sim", "--runs-dir", str(tmp_path / "runs"), "--detach", *quiet])
+        assert r.exit_code == 0 and "min_cluster_size_m" not in r.output, r.output
+
+
 def test_up_of_a_learned_method_the_weights_folder_lacks_names_those_it_holds(tmp_path: Path, monkeypatch):
     """``train --variant cso-sm --out RUN`` then ``up --method cso --weights RUN``: up said only "no weights at
     RUN/cso.pt; train it", not that RUN's weights are cso-sm's, to run with ``--method cso-sm`` (eval said so)."""

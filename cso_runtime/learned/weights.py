@@ -417,7 +417,7 @@ def input_verdict(
     ``ObservationBuilder()`` builds with) refuses and what it warns of (``input_mismatches``, ``INPUT_CHECKS``), with
     the messages (``InputMismatch.said``). The entropy window counts only for a variant that reads I
     (``policies.VARIANTS``; ``graph_use_entropy``, its graph's own switch, for a name that is no variant). Every load
-    (``registry._model_for``), ``up``'s check before anything starts (``recorded_input_refusal``) and
+    (``registry._model_for``), ``up``'s check and warnings before anything starts (``recorded_input_verdict``) and
     benchmarks/eval_ensemble.py's members decide with it; ``doctor`` too, with ``against`` naming the settings it compares
     with (``InputMismatch.said``)."""
     from cso_runtime.policies import VARIANTS  # noqa: PLC0415 - no torch; policies imports this module
@@ -517,15 +517,24 @@ def recorded_frontier(path: Path) -> FrontierConfig | None:
     return checkpoint_frontier(header, graph_window)
 
 
-def recorded_input_refusal(name: str, frontier: FrontierConfig, sensor: SensorConfig | None = None) -> str:
-    """What loading ``name``'s weights (for ``sensor``) with the run's ``frontier`` settings would refuse
-    (``input_verdict``'s refusal), as the checkpoint records them (``recorded_frontier``), in the policy service's words:
-    what ``up`` refuses before it starts anything, where the policy service would refuse it at its start. "" where
-    they match or the file does not read without torch (the policy service's load then says it)."""
+def recorded_input_verdict(name: str, frontier: FrontierConfig, sensor: SensorConfig | None = None) -> InputVerdict:
+    """What loading ``name``'s weights (for ``sensor``) with the run's ``frontier`` settings would refuse and warn of
+    (``input_verdict``, the very decision of the policy service's load, ``registry._model_for``), as the checkpoint
+    records them (``recorded_frontier``), in the policy service's words: what ``up`` refuses (``recorded_input_refusal``)
+    and says on its terminal (``cli._warn_of_weights_trained_otherwise``) before it starts anything, where the policy
+    service would refuse it, or warn of it in its own log only, at its start. Nothing where they match or the file does
+    not read without torch (the policy service's load then says it)."""
     from cso_runtime.policies import VARIANTS  # noqa: PLC0415 - no torch; policies imports this module
 
     path = weights_path(name, sensor)
     trained = recorded_frontier(path)
     if trained is None or name not in VARIANTS:
-        return ""
-    return input_verdict(name, path, trained, frontier).refusal
+        return InputVerdict()
+    return input_verdict(name, path, trained, frontier)
+
+
+def recorded_input_refusal(name: str, frontier: FrontierConfig, sensor: SensorConfig | None = None) -> str:
+    """What loading ``name``'s weights (for ``sensor``) with the run's ``frontier`` settings would refuse
+    (``recorded_input_verdict``'s refusal): what ``up`` refuses before it starts anything, where the policy service
+    would refuse it at its start. "" where they match or the file does not read without torch."""
+    return recorded_input_verdict(name, frontier, sensor).refusal
