@@ -73,6 +73,14 @@ for people and other tools (``rounded``): ``-5.275``, as map_saver_cli writes it
 ``rounded_floats``)."""
 
 
+UNTURNED_YAW_TOLERANCE_RAD = 10.0**-WRITTEN_DECIMALS
+"""A map origin's yaw within +- this (1e-9 rad: the nanoradian to which origins are written, ``rounded``) is no turn,
+read as 0; a larger one turns the grid (map_server's counterclockwise turn of a map by its YAML ``origin``'s yaw, sent
+in an OccupancyGrid's ``info.origin.orientation``), which a ``GridGeometry``, axis-aligned, cannot hold: readers that
+give one refuse such a map (``map_files.load_map``, ``ros2_cdr.occupancy_grid_from_cdr``) and name the reader that
+gives the grid in its own frame with the turn beside it. A 1 km grid turned by it moves no cell by more than 1 um."""
+
+
 def rounded(value: float) -> float:
     """``value`` rounded to ``WRITTEN_DECIMALS`` (a value that has no more decimals stays itself, to the bit); never
     ``-0.0``."""

@@ -24,7 +24,7 @@ import yaml
 from PIL import Image, UnidentifiedImageError
 
 from cso_runtime.config import finite_number, not_yaml_said, one_line, yaml12_number, yaml_dump, yaml_load
-from cso_runtime.geometry import GridGeometry, Pose2D, rounded_pose
+from cso_runtime.geometry import UNTURNED_YAW_TOLERANCE_RAD, GridGeometry, Pose2D, rounded_pose
 from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN
 from cso_runtime.outputs import write_text_atomic, write_whole
 
@@ -160,9 +160,10 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
     x0, y0, yaw = (_number(v, yaml_path, "origin") for v in origin)
     if not resolution > 0:
         raise MapFileError(f"{yaml_path}: resolution must be positive, got {resolution}")
-    if abs(yaw) > 1e-9 and not rotated_origin_ok:
+    if abs(yaw) > UNTURNED_YAW_TOLERANCE_RAD and not rotated_origin_ok:
         raise MapFileError(
-            f"{yaml_path}: a rotated origin (yaw {yaw} rad): load_map gives an axis-aligned grid in the map frame;"
+            f"{yaml_path}: a rotated origin (yaw {yaw} rad): load_map gives an axis-aligned grid in the map frame"
+            f" (an origin yaw within +-{UNTURNED_YAW_TOLERANCE_RAD} rad);"
             " load_map_and_meta(path, rotated_origin_ok=True) reads it, the grid in its own frame and the yaw in meta['origin']"
         )
     mode = meta.get("mode", "trinary")

@@ -16,7 +16,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, no_return_mask, rounded_pose
+from cso_runtime.geometry import (
+    UNTURNED_YAW_TOLERANCE_RAD,
+    GridGeometry,
+    LaserScan,
+    Pose2D,
+    VelocityCommand,
+    no_return_mask,
+    rounded_pose,
+)
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
@@ -333,15 +341,71 @@ def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_ns: in
     return encode(msg, OCCUPANCY_GRID)
 
 
-def occupancy_grid_from_cdr(raw: bytes) -> tuple[np.ndarray, GridGeometry]:
-    """nav_msgs/OccupancyGrid CDR -> int8 grid (row 0 at the origin) and where it lies: ``occupancy_grid_to_cdr`` read back."""
+MAP_QUATERNION_NORM_TOLERANCE = 1e-2
+"""How far from 1 the squared norm of an OccupancyGrid's ``info.origin.orientation`` may be: tf2's and RViz 2's own
+tolerance for a quaternion (tf2 ``QUATERNION_NORMALIZATION_TOLERANCE``, rviz_common ``validateQuaternions``), so a map
+they place is read; beyond it the quaternion is bad input, refused."""
+
+
+def _map_origin(origin: geometry_msgs__msg__Pose) -> Pose2D:
+    """An OccupancyGrid's ``info.origin`` as the planar pose of cell (0, 0)'s corner: a CdrError, saying what was
+    given, for a non-finite position or orientation, a quaternion off unit norm (``MAP_QUATERNION_NORM_TOLERANCE``), or
+    one that tilts the grid out of the plane (roll or pitch beyond ``UNTURNED_YAW_TOLERANCE_RAD``); a yaw within
+    ``UNTURNED_YAW_TOLERANCE_RAD`` is 0. ``z`` is not read: a grid lifted off the floor lies over the same cells."""
+    p, q = origin.position, origin.orientation
+    if not (math.isfinite(p.x) and math.isfinite(p.y)):
+        raise CdrError(f"OccupancyGrid has a non-finite origin position ({p.x}, {p.y})")
+    x, y, z, w = (float(v) for v in (q.x, q.y, q.z, q.w))
+    if not all(math.isfinite(v) for v in (x, y, z, w)):
+        raise CdrError(f"OccupancyGrid has a non-finite origin orientation ({x}, {y}, {z}, {w})")
+    norm2 = x * x + y * y + z * z + w * w
+    if abs(norm2 - 1.0) > MAP_QUATERNION_NORM_TOLERANCE:
+        raise CdrError(
+            f"OccupancyGrid origin orientation ({x}, {y}, {z}, {w}) is not a unit quaternion (squared norm {norm2};"
+            f" tf2 and RViz take 1 +- {MAP_QUATERNION_NORM_TOLERANCE})"
+        )
+    tilt_rad = 2.0 * math.atan2(math.hypot(x, y), math.hypot(z, w))  # the swing of the grid's normal away from z
+    if tilt_rad > UNTURNED_YAW_TOLERANCE_RAD:
+        raise CdrError(
+            f"OccupancyGrid origin orientation ({x}, {y}, {z}, {w}) tilts the grid out of the plane by {tilt_rad:.6g} rad"
+            f" (roll or pitch): a grid here is planar, turned about z only (within +-{UNTURNED_YAW_TOLERANCE_RAD} rad)"
+        )
+    yaw_rad = yaw_from_quaternion(x, y, z, w)
+    return Pose2D(float(p.x), float(p.y), 0.0 if abs(yaw_rad) <= UNTURNED_YAW_TOLERANCE_RAD else yaw_rad)
+
+
+def occupancy_grid_and_origin_from_cdr(raw: bytes) -> tuple[np.ndarray, GridGeometry, Pose2D]:
+    """nav_msgs/OccupancyGrid CDR -> int8 grid (row 0 at the origin), its geometry in the grid's own frame (cell
+    (0, 0)'s corner at (0, 0), rows along y) and ``info.origin``, that corner's pose in the message's frame, yaw
+    included (map_server's counterclockwise turn of a map by its YAML ``origin``): ``occupancy_grid_to_cdr``'s
+    ``origin`` read back; a point p of the grid's frame is at ``compose_xy(origin, p)`` there. A yaw within
+    ``UNTURNED_YAW_TOLERANCE_RAD`` is 0. A CdrError for a bad payload, a resolution that is not a positive finite
+    number, or an origin that places the grid nowhere (``_map_origin``: NaN, a non-unit or tilting quaternion)."""
     msg = decode(raw, OCCUPANCY_GRID)
     h, w = int(msg.info.height), int(msg.info.width)
     data = np.asarray(msg.data, dtype=np.int8)
     if data.size != h * w:
         raise CdrError(f"OccupancyGrid has {data.size} cells, expected {h} x {w}")
-    g = GridGeometry(float(msg.info.resolution), (h, w), float(msg.info.origin.position.x), float(msg.info.origin.position.y))
-    return data.reshape(h, w), g
+    resolution_m = float(msg.info.resolution)
+    if not (math.isfinite(resolution_m) and resolution_m > 0):
+        raise CdrError(f"OccupancyGrid resolution must be a positive finite number, got {resolution_m}")
+    return data.reshape(h, w), GridGeometry(resolution_m, (h, w)), _map_origin(msg.info.origin)
+
+
+def occupancy_grid_from_cdr(raw: bytes) -> tuple[np.ndarray, GridGeometry]:
+    """nav_msgs/OccupancyGrid CDR -> int8 grid (row 0 at the origin) and where it lies in the message's frame:
+    ``occupancy_grid_to_cdr`` read back. A ``GridGeometry`` is axis-aligned, so a map whose origin turns it (a yaw
+    beyond ``UNTURNED_YAW_TOLERANCE_RAD``, as map_server sends a map whose YAML ``origin`` has one) is a CdrError
+    naming the yaw, not a grid placed unturned; ``occupancy_grid_and_origin_from_cdr`` reads it (and says what else is
+    refused: a NaN or non-unit quaternion among them)."""
+    grid, own, origin = occupancy_grid_and_origin_from_cdr(raw)
+    if origin.yaw_rad != 0.0:
+        raise CdrError(
+            f"OccupancyGrid origin turns the grid by yaw {origin.yaw_rad} rad: occupancy_grid_from_cdr gives an"
+            f" axis-aligned grid, its origin's yaw within +-{UNTURNED_YAW_TOLERANCE_RAD} rad;"
+            " occupancy_grid_and_origin_from_cdr reads it, the grid in its own frame and its corner's pose, the yaw included"
+        )
+    return grid, GridGeometry(own.resolution_m, own.shape, origin.x_m, origin.y_m)
 
 
 def pose_stamped_to_cdr(x_m: float, y_m: float, yaw_rad: float, stamp_ns: int, frame_id: str = "map") -> bytes:

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
 
 from cso_runtime import ros2_cdr as cdr
-from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+from cso_runtime.geometry import UNTURNED_YAW_TOLERANCE_RAD, GridGeometry, LaserScan, Pose2D, VelocityCommand, compose_xy
 
 
 def limo_scan_bytes(ranges, angle_min=-math.pi / 2, angle_max=math.pi / 2, range_min=0.1, range_max=8.0):
@@ -200,6 +201,101 @@ def test_occupancy_grid_round_trip():
     np.testing.assert_array_equal(back, grid)
     assert g2.shape == g.shape and (g2.origin_x_m, g2.origin_y_m) == (-1.0, 2.0)
     assert g2.resolution_m == pytest.approx(0.05)  # float32 on the wire
+
+
+def _grid_with_origin(x_m: float, y_m: float, quaternion: tuple[float, float, float, float], resolution_m: float = 0.05) -> bytes:
+    """A 3 x 4 OccupancyGrid made by our encoder, its ``info.origin`` then set as another ROS node may send it (a
+    quaternion that ``occupancy_grid_to_cdr``'s yaw never gives: off unit norm, tilted, NaN)."""
+    grid = np.zeros((3, 4), dtype=np.int8)
+    grid[0, 0] = 100
+    msg = cdr.decode(cdr.occupancy_grid_to_cdr(grid, GridGeometry(0.05, (3, 4)), 1_000_000_000), cdr.OCCUPANCY_GRID)
+    msg.info.resolution = resolution_m
+    msg.info.origin.position.x, msg.info.origin.position.y = x_m, y_m
+    o = msg.info.origin.orientation
+    o.x, o.y, o.z, o.w = quaternion
+    return cdr.encode(msg, cdr.OCCUPANCY_GRID)
+
+
+def _yaw_quaternion(yaw_rad: float) -> tuple[float, float, float, float]:
+    return (0.0, 0.0, math.sin(yaw_rad / 2), math.cos(yaw_rad / 2))
+
+
+def test_an_occupancy_grid_whose_origin_turns_it_is_refused_naming_its_yaw_not_read_unturned():
+    """map_server turns a map by its YAML ``origin``'s yaw, and sends that yaw in ``info.origin.orientation``;
+    ``occupancy_grid_from_cdr`` dropped it and gave the grid axis-aligned at the corner's x and y: every cell but the
+    corner's in the wrong place, silently. Its geometry cannot turn, so it refuses such a map, saying the yaw given
+    and what it reads; ``occupancy_grid_and_origin_from_cdr`` reads it, the grid in its own frame and its corner's
+    pose, yaw included, in the message's frame."""
+    grid = np.full((30, 40), -1, dtype=np.int8)
+    grid[5, 5:20] = 100
+    geometry = GridGeometry(0.05, (30, 40))
+    raw = cdr.occupancy_grid_to_cdr(grid, geometry, 1_000_000_000, origin=Pose2D(1.0, 2.0, 0.5))
+    with pytest.raises(cdr.CdrError) as refused:
+        cdr.occupancy_grid_from_cdr(raw)
+    said = str(refused.value)
+    assert "yaw 0.5 rad" in said and f"within +-{UNTURNED_YAW_TOLERANCE_RAD} rad" in said, said
+    assert "occupancy_grid_and_origin_from_cdr" in said, said
+    back, own, origin = cdr.occupancy_grid_and_origin_from_cdr(raw)
+    np.testing.assert_array_equal(back, grid)
+    assert own.shape == geometry.shape and (own.origin_x_m, own.origin_y_m) == (0.0, 0.0)
+    assert own.resolution_m == pytest.approx(0.05)  # float32 on the wire
+    assert (origin.x_m, origin.y_m) == (1.0, 2.0) and origin.yaw_rad == pytest.approx(0.5, abs=1e-12)
+    # Cell (0, 1)'s centre, 0.075 m along the grid's x and 0.025 m along its y, in the map frame: turned by 0.5 rad.
+    centre = compose_xy(origin, np.array(own.cell_to_world(0, 1)).reshape(1, 2))[0]
+    c, s = math.cos(0.5), math.sin(0.5)
+    np.testing.assert_allclose(centre, [1.0 + c * 0.075 - s * 0.025, 2.0 + s * 0.075 + c * 0.025], atol=1e-12)
+
+
+def test_an_occupancy_grid_origin_yaw_within_the_tolerance_is_read_as_zero():
+    """A yaw within ``UNTURNED_YAW_TOLERANCE_RAD`` (the nanoradian to which origins are written) is no turn: the
+    grid is read axis-aligned at the corner, as before; just beyond it, refused."""
+    _, g = cdr.occupancy_grid_from_cdr(_grid_with_origin(-1.0, 2.0, _yaw_quaternion(0.5 * UNTURNED_YAW_TOLERANCE_RAD)))
+    assert (g.origin_x_m, g.origin_y_m, g.shape) == (-1.0, 2.0, (3, 4))
+    _, g, origin = cdr.occupancy_grid_and_origin_from_cdr(_grid_with_origin(-1.0, 2.0, _yaw_quaternion(-0.5 * UNTURNED_YAW_TOLERANCE_RAD)))
+    assert origin == Pose2D(-1.0, 2.0, 0.0) and (g.origin_x_m, g.origin_y_m) == (0.0, 0.0)
+    with pytest.raises(cdr.CdrError, match=r"by yaw -3\.0*\d*e-09 rad"):
+        cdr.occupancy_grid_from_cdr(_grid_with_origin(-1.0, 2.0, _yaw_quaternion(-3 * UNTURNED_YAW_TOLERANCE_RAD)))
+
+
+@pytest.mark.parametrize(
+    ("quaternion", "said"),
+    [
+        ((0.0, 0.0, 0.0, 2.0), "not a unit quaternion (squared norm 4.0"),
+        ((0.0, 0.0, 0.0, 0.9), "not a unit quaternion (squared norm 0.81"),
+        ((0.0, 0.0, 0.0, 0.0), "not a unit quaternion (squared norm 0.0"),
+        ((0.0, 0.0, float("nan"), 1.0), "non-finite origin orientation (0.0, 0.0, nan, 1.0)"),
+        ((0.0, 0.0, 0.0, float("inf")), "non-finite origin orientation"),
+        ((math.sin(0.05), 0.0, 0.0, math.cos(0.05)), "tilts the grid out of the plane by 0.1 rad"),
+        ((0.0, math.sin(-0.1), math.sin(0.2), math.cos(0.2)), "tilts the grid out of the plane"),
+    ],
+)
+def test_an_occupancy_grid_origin_with_a_bad_quaternion_is_refused(quaternion, said):
+    """A map origin whose orientation is no planar turn is bad input, not a grid placed somewhere: off unit norm
+    beyond tf2's and RViz's own tolerance, NaN or infinite, or tilting the grid out of the plane (roll or pitch)."""
+    raw = _grid_with_origin(0.0, 0.0, quaternion)
+    for read in (cdr.occupancy_grid_from_cdr, cdr.occupancy_grid_and_origin_from_cdr):
+        with pytest.raises(cdr.CdrError, match=re.escape(said)):
+            read(raw)
+
+
+def test_an_occupancy_grid_origin_quaternion_within_tf2s_norm_tolerance_is_read():
+    """tf2 and RViz 2 take a quaternion whose squared norm is within 0.01 of 1 (a rounded one, written with a few
+    decimals); so does the map's origin, its yaw read from it as it is."""
+    _, g = cdr.occupancy_grid_from_cdr(_grid_with_origin(0.5, 0.25, (0.0, 0.0, 0.0, 1.004)))
+    assert (g.origin_x_m, g.origin_y_m) == (0.5, 0.25)
+    _, _, origin = cdr.occupancy_grid_and_origin_from_cdr(_grid_with_origin(0.5, 0.25, (0.0, 0.0, 0.7071, 0.7071)))
+    assert origin.yaw_rad == pytest.approx(math.pi / 2)
+
+
+@pytest.mark.parametrize(
+    ("position", "resolution_m", "said"),
+    [((float("nan"), 0.0), 0.05, "non-finite origin position (nan, 0.0)"), ((0.0, float("-inf")), 0.05, "non-finite origin position"),
+     ((0.0, 0.0), 0.0, "resolution must be a positive finite number, got 0.0"), ((0.0, 0.0), float("nan"), "resolution must be a positive")],
+)
+def test_an_occupancy_grid_with_no_place_or_cell_size_is_refused(position, resolution_m, said):
+    """A grid with a NaN corner or a resolution that is not a positive number lies nowhere: refused, not a geometry."""
+    with pytest.raises(cdr.CdrError, match=re.escape(said)):
+        cdr.occupancy_grid_from_cdr(_grid_with_origin(*position, _yaw_quaternion(0.0), resolution_m=resolution_m))
 
 
 def test_pose_and_markers_encode():
