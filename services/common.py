@@ -788,7 +788,20 @@ odometry, the planner's scans for theirs. Real time acts on the newest step that
 so of these only the newest ever matters, and they wait only while their odometry is in flight: the referee (sim,
 ROS 2 bridge, a replay) sends a step's odometry with its scan, and the mapper builds each map from a scan, not from
 the odometry. While the odometry was silent, each map (two bytes a cell decoded: 8 MB at the default
-``max_grid_cells``) was kept for as long as the episode ran. Small inputs have ``PENDING_SMALL_STEPS_KEPT``."""
+``max_grid_cells``) was kept for as long as the episode ran. Small inputs have ``PENDING_SMALL_STEPS_KEPT``; maps,
+``PENDING_MAX_BYTES`` besides."""
+
+PENDING_MAX_BYTES = 256 << 20
+"""Real time: the most bytes of maps (decoded: their explored and occupied grids, one byte a cell each) the frontier
+service keeps waiting for their odometry (``steps_kept``: fewer than ``PENDING_STEPS_KEPT`` steps of maps larger than
+about 0.9 MiB, the newest always), each one dropped counted as a rejection of ``map``. 256 maps of the largest grid
+``max_grid_cells`` allows were 2.0 GB at its default (4,000,000 cells: 8 MB a map, 288 kept before a trim: 2.3 GB)
+and 25.6 GB at its ceiling (``messages.MAX_GRID_CELLS``, 50,000,000 cells: 100 MB a map, 28.8 GB before a trim),
+held for as long as the odometry was silent (a sim stalled, a bridge reading the wrong odometry topic); now at most
+this (2 maps at the ceiling: 200 MB). The odometry comes with its step's scan, before the map built from it, so maps
+wait for it only while it is in flight: this keeps the 30 newest maps (33 before a trim) of the default bound's
+largest grid (3 s at 10 Hz), and the whole ``PENDING_STEPS_KEPT`` of the shipped scenes' (at most 640 x 480 cells:
+0.6 MB a map)."""
 
 PENDING_SMALL_STEPS_KEPT = INBOX_LIMIT
 """Real time: how many steps of a small per-step input (odometry, the planner's reports: about 0.4 kB each decoded, a
@@ -802,13 +815,24 @@ the steps waiting here take too. A partner that is dead (a mapper given up on, a
 grows the service for as long as the episode runs: about 50 MB of odometry at most."""
 
 
-def keep_newest(pending: dict[int, Any], n: int) -> None:
+def keep_newest(pending: dict[int, Any], n: int) -> list[int]:
     """Keep the ``n`` newest steps of ``pending`` (in place), and at most ``n + n // 8``: past that it drops all but the
     ``n`` newest, so the sort is paid once per ``n // 8`` steps kept (a partner silent for long costs no sort of
-    100,000 steps per input). Below that it costs one ``len``."""
-    if len(pending) > n + n // 8:
-        for step in sorted(pending)[:-n]:
-            del pending[step]
+    100,000 steps per input). Below that it costs one ``len``. The steps dropped, oldest first (mostly none)."""
+    if len(pending) <= n + n // 8:
+        return []
+    dropped = sorted(pending)[:-n]
+    for step in dropped:
+        del pending[step]
+    return dropped
+
+
+def steps_kept(item_bytes: int, n: int = PENDING_STEPS_KEPT, max_bytes: int = PENDING_MAX_BYTES) -> int:
+    """The ``n`` to give ``keep_newest`` for steps of ``item_bytes`` each (maps of one grid) so that what it keeps, an
+    eighth more before a trim included, holds at most ``max_bytes``: at most ``n``, and never less than 1 (the newest
+    step stays, whatever its size). O(1): ``k + k // 8 <= m`` for ``k = 8 * (m // 9) + min(m % 9, 7)``, the largest."""
+    m = max_bytes // max(1, item_bytes)
+    return max(1, min(n, 8 * (m // 9) + min(m % 9, 7)))
 
 
 STEP_JUMP_LIMIT = 500
