@@ -376,6 +376,18 @@ class Service:
         if n <= 5 or n % 100 == 0:
             log.warning("%s: rejected payload on %s (%d so far): %s", self.name, topic, n, why)
 
+    def keep_newest_within(self, topic: str, pending: dict[int, Any], n: int, item_bytes: int, waiting_for: str, robot: str | None = None) -> None:
+        """Real time: ``keep_newest`` of ``pending`` (large inputs on ``topic`` waiting for ``waiting_for``) at most ``n``
+        steps and ``PENDING_MAX_BYTES`` of them, each holding ``item_bytes`` (the newest's: ``steps_kept``); each step
+        dropped is counted and logged as a rejection of ``topic`` (``reject``). O(1) but for a trim."""
+        kept = steps_kept(item_bytes, n)
+        for step in keep_newest(pending, kept):
+            why = (
+                f"{topic} of step {step} dropped unused: {waiting_for} did not come while {kept} newer ones waited "
+                f"(at most {n}, and {PENDING_MAX_BYTES >> 20} MiB: {item_bytes / 2**20:.1f} MiB each)"
+            )
+            self.reject(topic, why, robot)
+
     def of_another_episode(self, topic: str, msg: Message, own_episode: int) -> bool:
         """Whether ``msg`` belongs to an episode other than ``own_episode`` (a referee's: the sim's, the ROS bridge's)
         and is rejected, counted: still in flight from before a restart. Id 0, a publisher without ids, is taken."""
@@ -792,16 +804,19 @@ the odometry. While the odometry was silent, each map (two bytes a cell decoded:
 ``PENDING_MAX_BYTES`` besides."""
 
 PENDING_MAX_BYTES = 256 << 20
-"""Real time: the most bytes of maps (decoded: their explored and occupied grids, one byte a cell each) the frontier
-service keeps waiting for their odometry (``steps_kept``: fewer than ``PENDING_STEPS_KEPT`` steps of maps larger than
-about 0.9 MiB, the newest always), each one dropped counted as a rejection of ``map``. 256 maps of the largest grid
-``max_grid_cells`` allows were 2.0 GB at its default (4,000,000 cells: 8 MB a map, 288 kept before a trim: 2.3 GB)
-and 25.6 GB at its ceiling (``messages.MAX_GRID_CELLS``, 50,000,000 cells: 100 MB a map, 28.8 GB before a trim),
-held for as long as the odometry was silent (a sim stalled, a bridge reading the wrong odometry topic); now at most
-this (2 maps at the ceiling: 200 MB). The odometry comes with its step's scan, before the map built from it, so maps
-wait for it only while it is in flight: this keeps the 30 newest maps (33 before a trim) of the default bound's
-largest grid (3 s at 10 Hz), and the whole ``PENDING_STEPS_KEPT`` of the shipped scenes' (at most 640 x 480 cells:
-0.6 MB a map)."""
+"""Real time: the most bytes of one large input a service keeps waiting for its partner (``Service.keep_newest_within``,
+``steps_kept``: the newest always stays), each one dropped counted as a rejection of its topic: the frontier service's
+maps waiting for their odometry (decoded: their explored and occupied grids, one byte a cell each; fewer than
+``PENDING_STEPS_KEPT`` maps once a map is larger than about 0.9 MiB), and the planner's decisions waiting for their
+goal (``planner.PENDING_DECISIONS_KEPT``: their frontiers' grids, and apart from them their distance maps). 256 maps
+of the largest grid ``max_grid_cells`` allows were 2.0 GB at its default (4,000,000 cells: 8 MB a map, 288 kept
+before a trim: 2.3 GB) and 25.6 GB at its ceiling (``messages.MAX_GRID_CELLS``, 50,000,000 cells: 100 MB a map,
+28.8 GB before a trim), held for as long as the odometry was silent (a sim stalled, a bridge reading the wrong
+odometry topic); now at most this (2 maps at the ceiling: 200 MB). The odometry comes with its step's scan, before
+the map built from it, so maps wait for it only while it is in flight: this keeps the 30 newest maps (33 before a
+trim) of the default bound's largest grid (3 s at 10 Hz), and the whole ``PENDING_STEPS_KEPT`` of the shipped scenes'
+(at most 640 x 480 cells: 0.6 MB a map). The planner's scans need no such bound: 288 of the largest (100,000 float32
+ranges, ``messages.MAX_BEAMS``) are 115 MB."""
 
 PENDING_SMALL_STEPS_KEPT = INBOX_LIMIT
 """Real time: how many steps of a small per-step input (odometry, the planner's reports: about 0.4 kB each decoded, a

@@ -42,7 +42,6 @@ from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
 from services.common import (
-    PENDING_MAX_BYTES,
     PENDING_SMALL_STEPS_KEPT,
     PENDING_STEPS_KEPT,
     EpisodeWatch,
@@ -50,7 +49,6 @@ from services.common import (
     ServiceContext,
     keep_newest,
     service_main,
-    steps_kept,
     warm_up_map,
 )
 from services.frontier_layer import FrontierLayerWorker
@@ -383,25 +381,14 @@ class FrontierService(Service):
         if isinstance(msg, MapMsg):
             self.maps[step] = msg
             if not self.ctx.lockstep:  # odometry silent: no map finds its partner (large: only the newest matters)
-                self.keep_newest_maps(msg, robot)
+                # Every map waiting is on the episode's grid (``of_another_grid``): each holds what this one does.
+                map_bytes = msg.explored.nbytes + msg.occupied.nbytes
+                self.keep_newest_within("map", self.maps, PENDING_STEPS_KEPT, map_bytes, "the odometry of its step", robot)
         elif isinstance(msg, OdometryMsg):
             self.odoms[step] = msg
             if not self.ctx.lockstep:  # bounded for a mapper gone; 100,000 steps for one far behind (replay --speed max)
                 keep_newest(self.odoms, PENDING_SMALL_STEPS_KEPT)
         self.try_decide()
-
-    def keep_newest_maps(self, newest: MapMsg, robot: str) -> None:
-        """Real time: keep the newest maps waiting for their odometry, at most ``PENDING_STEPS_KEPT`` and
-        ``PENDING_MAX_BYTES`` of them (``steps_kept``: every map waiting is on the episode's grid, ``of_another_grid``, so
-        each holds what ``newest`` does); each one dropped is counted as a rejection of ``map``. O(1) but for a trim."""
-        map_bytes = newest.explored.nbytes + newest.occupied.nbytes
-        kept = steps_kept(map_bytes)
-        for step in keep_newest(self.maps, kept):
-            why = (
-                f"map of step {step} dropped unused: no odometry of its step came while {kept} newer maps waited "
-                f"(at most {PENDING_STEPS_KEPT} maps, {PENDING_MAX_BYTES >> 20} MiB: {map_bytes / 2**20:.1f} MiB a map)"
-            )
-            self.reject("map", why, robot)
 
     def end_episode(self, how: str) -> None:
         """The episode is over: the referees (the sim, the ROS 2 bridge) end it on an empty goal, on coverage, at
