@@ -376,6 +376,18 @@ class Service:
         if n <= 5 or n % 100 == 0:
             log.warning("%s: rejected payload on %s (%d so far): %s", self.name, topic, n, why)
 
+    def keep_newest_within(self, topic: str, pending: dict[int, Any], n: int, item_bytes: int, waiting_for: str, robot: str | None = None) -> None:
+        """Real time: ``keep_newest`` of ``pending`` (large inputs on ``topic`` waiting for ``waiting_for``) at most ``n``
+        steps and ``PENDING_MAX_BYTES`` of them, each holding ``item_bytes`` (the newest's: ``steps_kept``); each step
+        dropped is counted and logged as a rejection of ``topic`` (``reject``). O(1) but for a trim."""
+        kept = steps_kept(item_bytes, n)
+        for step in keep_newest(pending, kept):
+            why = (
+                f"{topic} of step {step} dropped unused: {waiting_for} did not come while {kept} newer ones waited "
+                f"(at most {n}, and {PENDING_MAX_BYTES >> 20} MiB: {item_bytes / 2**20:.1f} MiB each)"
+            )
+            self.reject(topic, why, robot)
+
     def of_another_episode(self, topic: str, msg: Message, own_episode: int) -> bool:
         """Whether ``msg`` belongs to an episode other than ``own_episode`` (a referee's: the sim's, the ROS bridge's)
         and is rejected, counted: still in flight from before a restart. Id 0, a publisher without ids, is taken."""
@@ -788,7 +800,23 @@ odometry, the planner's scans for theirs. Real time acts on the newest step that
 so of these only the newest ever matters, and they wait only while their odometry is in flight: the referee (sim,
 ROS 2 bridge, a replay) sends a step's odometry with its scan, and the mapper builds each map from a scan, not from
 the odometry. While the odometry was silent, each map (two bytes a cell decoded: 8 MB at the default
-``max_grid_cells``) was kept for as long as the episode ran. Small inputs have ``PENDING_SMALL_STEPS_KEPT``."""
+``max_grid_cells``) was kept for as long as the episode ran. Small inputs have ``PENDING_SMALL_STEPS_KEPT``; maps,
+``PENDING_MAX_BYTES`` besides."""
+
+PENDING_MAX_BYTES = 256 << 20
+"""Real time: the most bytes of one large input a service keeps waiting for its partner (``Service.keep_newest_within``,
+``steps_kept``: the newest always stays), each one dropped counted as a rejection of its topic: the frontier service's
+maps waiting for their odometry (decoded: their explored and occupied grids, one byte a cell each; fewer than
+``PENDING_STEPS_KEPT`` maps once a map is larger than about 0.9 MiB), and the planner's decisions waiting for their
+goal (``planner.PENDING_DECISIONS_KEPT``: their frontiers' grids, and apart from them their distance maps). 256 maps
+of the largest grid ``max_grid_cells`` allows were 2.0 GB at its default (4,000,000 cells: 8 MB a map, 288 kept
+before a trim: 2.3 GB) and 25.6 GB at its ceiling (``messages.MAX_GRID_CELLS``, 50,000,000 cells: 100 MB a map,
+28.8 GB before a trim), held for as long as the odometry was silent (a sim stalled, a bridge reading the wrong
+odometry topic); now at most this (2 maps at the ceiling: 200 MB). The odometry comes with its step's scan, before
+the map built from it, so maps wait for it only while it is in flight: this keeps the 30 newest maps (33 before a
+trim) of the default bound's largest grid (3 s at 10 Hz), and the whole ``PENDING_STEPS_KEPT`` of the shipped scenes'
+(at most 640 x 480 cells: 0.6 MB a map). The planner's scans need no such bound: 288 of the largest (100,000 float32
+ranges, ``messages.MAX_BEAMS``) are 115 MB."""
 
 PENDING_SMALL_STEPS_KEPT = INBOX_LIMIT
 """Real time: how many steps of a small per-step input (odometry, the planner's reports: about 0.4 kB each decoded, a
@@ -802,13 +830,24 @@ the steps waiting here take too. A partner that is dead (a mapper given up on, a
 grows the service for as long as the episode runs: about 50 MB of odometry at most."""
 
 
-def keep_newest(pending: dict[int, Any], n: int) -> None:
+def keep_newest(pending: dict[int, Any], n: int) -> list[int]:
     """Keep the ``n`` newest steps of ``pending`` (in place), and at most ``n + n // 8``: past that it drops all but the
     ``n`` newest, so the sort is paid once per ``n // 8`` steps kept (a partner silent for long costs no sort of
-    100,000 steps per input). Below that it costs one ``len``."""
-    if len(pending) > n + n // 8:
-        for step in sorted(pending)[:-n]:
-            del pending[step]
+    100,000 steps per input). Below that it costs one ``len``. The steps dropped, oldest first (mostly none)."""
+    if len(pending) <= n + n // 8:
+        return []
+    dropped = sorted(pending)[:-n]
+    for step in dropped:
+        del pending[step]
+    return dropped
+
+
+def steps_kept(item_bytes: int, n: int = PENDING_STEPS_KEPT, max_bytes: int = PENDING_MAX_BYTES) -> int:
+    """The ``n`` to give ``keep_newest`` for steps of ``item_bytes`` each (maps of one grid) so that what it keeps, an
+    eighth more before a trim included, holds at most ``max_bytes``: at most ``n``, and never less than 1 (the newest
+    step stays, whatever its size). O(1): ``k + k // 8 <= m`` for ``k = 8 * (m // 9) + min(m % 9, 7)``, the largest."""
+    m = max_bytes // max(1, item_bytes)
+    return max(1, min(n, 8 * (m // 9) + min(m % 9, 7)))
 
 
 STEP_JUMP_LIMIT = 500

@@ -381,7 +381,9 @@ class FrontierService(Service):
         if isinstance(msg, MapMsg):
             self.maps[step] = msg
             if not self.ctx.lockstep:  # odometry silent: no map finds its partner (large: only the newest matters)
-                keep_newest(self.maps, PENDING_STEPS_KEPT)
+                # Every map waiting is on the episode's grid (``of_another_grid``): each holds what this one does.
+                map_bytes = msg.explored.nbytes + msg.occupied.nbytes
+                self.keep_newest_within("map", self.maps, PENDING_STEPS_KEPT, map_bytes, "the odometry of its step", robot)
         elif isinstance(msg, OdometryMsg):
             self.odoms[step] = msg
             if not self.ctx.lockstep:  # bounded for a mapper gone; 100,000 steps for one far behind (replay --speed max)

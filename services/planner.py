@@ -72,7 +72,11 @@ def silence_reason(silent: dict[str, float], seconds_format: str) -> str:
 PENDING_DECISIONS_KEPT = 16
 """Real time: decisions (frontiers with their grids, distance maps) kept while their goal has not come. A
 policy that is down or far behind must not grow the planner without bound; a goal for an older decision
-than these finds nothing to plan on and waits for the next one."""
+than these finds nothing to plan on and waits for the next one. Of each, ``common.PENDING_MAX_BYTES`` at most
+(``Service.keep_newest_within``): 18 decisions (16, an eighth more before a trim) of the largest grid the default
+``max_grid_cells`` allows (4,000,000 cells: three bool grids and a float64 D, 11 bytes a cell) were 792 MB, and 9.9 GB
+at ``messages.MAX_GRID_CELLS``; now 16 to 18 frontiers (216 MB) and 7 to 8 distance maps (256 MB) there, 1 and 1
+(550 MB) at the ceiling."""
 
 
 PLANNER_PARAMS_BOUNDS = {**seconds("stale_after_s", positive=True), **seconds("path_period_s", "restore_timeout_s")}
@@ -328,12 +332,13 @@ class PlannerService(Service):
                 keep_newest(self.scans, PENDING_STEPS_KEPT)
         elif isinstance(msg, FrontiersMsg) and (msg.decide or self.ctx.lockstep):
             self.frontiers[step] = msg  # real time needs only those that carry a decision's grids
-            if not self.ctx.lockstep:
-                keep_newest(self.frontiers, PENDING_DECISIONS_KEPT)
+            if not self.ctx.lockstep:  # the grids it decoded (``PlannerFrontiersMsg``): a decision's frontiers are on one grid
+                grid_bytes = sum(a.nbytes for a in msg.arrays.values())
+                self.keep_newest_within("frontiers", self.frontiers, PENDING_DECISIONS_KEPT, grid_bytes, "the goal of its decision", robot)
         elif isinstance(msg, DistanceMapMsg):
             self.distance_maps[step] = msg
-            if not self.ctx.lockstep:
-                keep_newest(self.distance_maps, PENDING_DECISIONS_KEPT)
+            if not self.ctx.lockstep:  # one float64 a cell: without its D a goal is planned all the same (``apply_goal``)
+                self.keep_newest_within("distance_map", self.distance_maps, PENDING_DECISIONS_KEPT, msg.distance_m.nbytes, "the goal of its decision", robot)
             return  # never needed to command a step (a plan goes without it)
         elif isinstance(msg, GoalMsg) and msg.decided:
             self.goals[step] = msg

@@ -4,7 +4,9 @@ and what it has to let go of is counted where ``status`` shows it."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import itertools
+import math
 import os
 import threading
 import time
@@ -17,9 +19,23 @@ import pytest
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.keys import RobotKeys
-from cso_runtime.messages import ClockMsg, MapMsg, OdometryMsg, PlannerFeedbackMsg, ScanMsg, ServiceStatusMsg, decode, encode
+from cso_runtime.messages import (
+    DEFAULT_MAX_GRID_CELLS,
+    ClockMsg,
+    DistanceMapMsg,
+    FrontiersMsg,
+    GoalMsg,
+    MapMsg,
+    OdometryMsg,
+    PlannerFeedbackMsg,
+    PlannerFrontiersMsg,
+    ScanMsg,
+    ServiceStatusMsg,
+    decode,
+    encode,
+)
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
-from services.common import PENDING_STEPS_KEPT, topic_name
+from services.common import PENDING_MAX_BYTES, PENDING_STEPS_KEPT, steps_kept, topic_name
 from services.frontier import FrontierService
 from services.planner import PlannerService
 from tests.conftest import HANG_DEADLINE_S, wait_for
@@ -101,6 +117,84 @@ def test_a_real_time_frontier_service_whose_odometry_stopped_keeps_a_bounded_num
         _feed(frontier, MapMsg.of(step, ex.map))
         assert len(frontier.maps) <= PENDING_STEPS_KEPT + PENDING_STEPS_KEPT // 8
     assert set(range(PENDING_STEPS_KEPT + 1, 2 * PENDING_STEPS_KEPT + 1)) <= set(frontier.maps) and out == []
+    assert frontier.rejected["map"] == 2 * PENDING_STEPS_KEPT - len(frontier.maps)  # each map dropped unused, counted
+
+
+def test_steps_kept_is_the_most_steps_keep_newest_may_keep_within_the_bytes_and_never_none():
+    for budget in range(200):
+        kept = steps_kept(1, n=10**6, max_bytes=budget)
+        assert kept == max([k for k in range(1, budget + 1) if k + k // 8 <= budget], default=1)
+    assert steps_kept(1) == PENDING_STEPS_KEPT and steps_kept(PENDING_MAX_BYTES + 1) == 1  # the newest step stays
+
+
+def _largest_default_grid_map() -> tuple[tuple[GridGeometry, np.ndarray, np.ndarray], OdometryMsg]:
+    """The map of step 0 in the corner of the largest grid the default ``max_grid_cells`` allows (2000 x 2000: 8 MB
+    decoded, explored and occupied), and the odometry of its step."""
+    m, odom, _ = _inputs(_explorer_at(0), 0)
+    side = math.isqrt(DEFAULT_MAX_GRID_CELLS)
+    g = m.geometry
+    grid = GridGeometry(g.resolution_m, (side, side), g.origin_x_m, g.origin_y_m)
+    explored, occupied = np.zeros(grid.shape, dtype=bool), np.zeros(grid.shape, dtype=bool)
+    explored[: g.shape[0], : g.shape[1]], occupied[: g.shape[0], : g.shape[1]] = m.explored, m.occupied
+    return (grid, explored, occupied), odom
+
+
+def test_a_real_time_frontier_service_whose_odometry_stopped_keeps_at_most_pending_max_bytes_of_maps_of_the_largest_grid():
+    """Odometry silent (a sim stalled, a bridge reading the wrong odometry topic) while the mapper goes on, on the
+    largest grid the default ``max_grid_cells`` allows (2000 x 2000: 8 MB a map decoded): the frontier service kept
+    256 maps, 288 before a trim (2.3 GB; 28.8 GB at ``MAX_GRID_CELLS``). Now at most ``PENDING_MAX_BYTES`` of them,
+    the newest kept, each dropped counted; and the odometry of the newest step, when it comes, is decided on with it."""
+    frontier, out = _service(FrontierService, lockstep=False)
+    (grid, explored, occupied), odom = _largest_default_grid_map()
+    map_bytes = explored.nbytes + occupied.nbytes
+    last, most_held = 2 * PENDING_STEPS_KEPT, 0
+    for step in range(1, last + 1):
+        # As decoded from the wire, less the codec (512 decodes of 8 MB): every message holds grids of its own there,
+        # and is counted so here.
+        frontier.on_message("r0", "map", MapMsg(step, grid, explored, occupied), time.monotonic())
+        most_held = max(most_held, len(frontier.maps) * map_bytes)
+        assert step in frontier.maps  # the newest is always kept
+    assert most_held <= PENDING_MAX_BYTES, f"{most_held / 2**20:.0f} MiB of maps held waiting for their odometry"
+    kept = steps_kept(map_bytes)
+    assert set(range(last - kept + 1, last + 1)) <= set(frontier.maps) and out == []
+    assert frontier.rejected["map"] == frontier.rejected_by_robot["r0"]["map"] == last - len(frontier.maps)
+    _feed(frontier, OdometryMsg(last, odom.stamp_s, odom.pose))  # the odometry back: the newest map is decided on
+    assert [(t, msg.step) for t, msg in out] == [("frontiers", last), ("distance_map", last)] and out[0][1].decide
+    assert out[1][1].geometry == grid and not frontier.maps
+
+
+def test_a_real_time_planner_whose_policy_is_down_keeps_at_most_pending_max_bytes_of_decisions_of_the_largest_grid():
+    """A policy that is down: the frontier service asks again every ``goal_wait_s``, and the planner kept 16 decisions
+    (18 before a trim) waiting for their goal, each its frontiers' three grids and its D (11 bytes a cell decoded): on
+    the largest grid the default ``max_grid_cells`` allows, 792 MB (9.9 GB at ``MAX_GRID_CELLS``). Now at most
+    ``PENDING_MAX_BYTES`` of each, the newest kept, each dropped counted; the goal of the newest decision is planned."""
+    from services.planner import PENDING_DECISIONS_KEPT
+
+    frontier, decided = _service(FrontierService, lockstep=False)
+    (grid, explored, occupied), odom = _largest_default_grid_map()
+    _feed(frontier, MapMsg(0, grid, explored, occupied))
+    _feed(frontier, odom)
+    (_, f), (_, d) = decided
+    assert isinstance(f, FrontiersMsg) and f.decide and isinstance(d, DistanceMapMsg) and d.geometry == grid
+    f = decode(encode(f), PlannerFrontiersMsg)  # the grids the planner decodes: traversable, occupied, explored
+    f_bytes, d_bytes = sum(a.nbytes for a in f.arrays.values()), d.distance_m.nbytes
+    planner, out = _service(PlannerService, lockstep=False)
+    last, most_held = 3 * PENDING_DECISIONS_KEPT, {"frontiers": 0, "distance_map": 0}
+    for step in range(1, last + 1):
+        # As decoded from the wire, less the codec: every message holds grids of its own there, and is counted so here.
+        planner.on_message("r0", "frontiers", dataclasses.replace(f, step=step), time.monotonic())
+        planner.on_message("r0", "distance_map", dataclasses.replace(d, step=step), time.monotonic())
+        most_held["frontiers"] = max(most_held["frontiers"], len(planner.frontiers) * f_bytes)
+        most_held["distance_map"] = max(most_held["distance_map"], len(planner.distance_maps) * d_bytes)
+        assert step in planner.frontiers and step in planner.distance_maps  # the newest are always kept
+    assert max(most_held.values()) <= PENDING_MAX_BYTES, f"MiB of decisions held waiting for their goal: { {k: v >> 20 for k, v in most_held.items()} }"
+    assert set(range(last - steps_kept(d_bytes, PENDING_DECISIONS_KEPT) + 1, last + 1)) <= set(planner.distance_maps)
+    assert set(range(last - PENDING_DECISIONS_KEPT + 1, last + 1)) <= set(planner.frontiers)  # 12 MB each: all 16 fit
+    dropped = {"frontiers": last - len(planner.frontiers), "distance_map": last - len(planner.distance_maps)}
+    assert planner.rejected == planner.rejected_by_robot["r0"] == dropped and out == []
+    far = max((c for c in decode(encode(decided[0][1]), FrontiersMsg).clusters if np.isfinite(c["distance_m"])), key=lambda c: c["distance_m"])
+    _feed(planner, GoalMsg(last, True, *far["goal_xy_m"], 0, far["distance_m"]))  # the policy back: the newest is planned
+    assert planner.planner.status.value == "following" and planner.goal_step == last
 
 
 def test_a_real_time_planner_whose_lidar_stopped_keeps_a_bounded_number_of_odometry_steps_and_commands_the_next_scan(monkeypatch):
