@@ -365,28 +365,35 @@ class Service:
         behind without bound."""
         return self._inbox.qsize() if self._inbox is not None else 0
 
-    def reject(self, topic: str, why: str, robot: str | None = None) -> None:
-        """Count (and log, the first few and every hundredth) a rejected input of ``robot`` (None: of no robot
-        the key names) on ``topic``."""
+    def reject(self, topic: str, why: str, robot: str | None = None, count: int = 1) -> None:
+        """Count (and log, the first few and every hundredth) a rejected input of ``robot`` (None: of no robot the key
+        names) on ``topic``; ``count`` of them dropped at once (``keep_newest_within``), logged in one line."""
         with self._lock:
-            n = self.rejected[topic] = self.rejected.get(topic, 0) + 1
+            before = self.rejected.get(topic, 0)
+            n = self.rejected[topic] = before + count
             if robot is not None:
                 own = self.rejected_by_robot.setdefault(robot, {})
-                own[topic] = own.get(topic, 0) + 1
-        if n <= 5 or n % 100 == 0:
+                own[topic] = own.get(topic, 0) + count
+        if before < 5 or before // 100 != n // 100:  # one by one: n <= 5 or n % 100 == 0
             log.warning("%s: rejected payload on %s (%d so far): %s", self.name, topic, n, why)
 
-    def keep_newest_within(self, topic: str, pending: dict[int, Any], n: int, item_bytes: int, waiting_for: str, robot: str | None = None) -> None:
-        """Real time: ``keep_newest`` of ``pending`` (large inputs on ``topic`` waiting for ``waiting_for``) at most ``n``
-        steps and ``PENDING_MAX_BYTES`` of them, each holding ``item_bytes`` (the newest's: ``steps_kept``); each step
-        dropped is counted and logged as a rejection of ``topic`` (``reject``). O(1) but for a trim."""
-        kept = steps_kept(item_bytes, n)
-        for step in keep_newest(pending, kept):
-            why = (
-                f"{topic} of step {step} dropped unused: {waiting_for} did not come while {kept} newer ones waited "
-                f"(at most {n}, and {PENDING_MAX_BYTES >> 20} MiB: {item_bytes / 2**20:.1f} MiB each)"
-            )
-            self.reject(topic, why, robot)
+    def keep_newest_within(
+        self, topic: str, pending: dict[int, Any], n: int, item_bytes: int | None, waiting_for: str, robot: str | None = None
+    ) -> None:
+        """Real time: ``keep_newest`` of ``pending`` (inputs on ``topic`` waiting for ``waiting_for``) at most ``n`` steps,
+        and of a large input (``item_bytes``: what each step holds, the newest's; None for a small one: no byte budget)
+        at most ``PENDING_MAX_BYTES`` of them (``steps_kept``). The steps dropped are counted and logged as rejections of
+        ``topic`` (``reject``: one call, one log line at most, per trim). O(1) but for a trim."""
+        kept = n if item_bytes is None else steps_kept(item_bytes, n)
+        dropped = keep_newest(pending, kept)
+        if not dropped:
+            return
+        bound = f"at most {n}"
+        if item_bytes is not None:
+            bound += f", and {PENDING_MAX_BYTES >> 20} MiB: {item_bytes / 2**20:.1f} MiB each"
+        steps = f"step {dropped[0]}" if len(dropped) == 1 else f"{len(dropped)} steps ({dropped[0]} to {dropped[-1]})"
+        why = f"{topic} of {steps} dropped unused: {waiting_for} did not come while {kept} newer ones waited ({bound})"
+        self.reject(topic, why, robot, len(dropped))
 
     def of_another_episode(self, topic: str, msg: Message, own_episode: int) -> bool:
         """Whether ``msg`` belongs to an episode other than ``own_episode`` (a referee's: the sim's, the ROS bridge's)
@@ -801,7 +808,7 @@ so of these only the newest ever matters, and they wait only while their odometr
 ROS 2 bridge, a replay) sends a step's odometry with its scan, and the mapper builds each map from a scan, not from
 the odometry. While the odometry was silent, each map (two bytes a cell decoded: 8 MB at the default
 ``max_grid_cells``) was kept for as long as the episode ran. Small inputs have ``PENDING_SMALL_STEPS_KEPT``; maps,
-``PENDING_MAX_BYTES`` besides."""
+``PENDING_MAX_BYTES`` besides. Each step dropped is counted as a rejection of its topic (``Service.keep_newest_within``)."""
 
 PENDING_MAX_BYTES = 256 << 20
 """Real time: the most bytes of one large input a service keeps waiting for its partner (``Service.keep_newest_within``,
@@ -827,7 +834,8 @@ fresh pipeline sends the odometry thousands of steps ahead of a mapper that reco
 the odometry of its own step; trimmed to 256 steps, the frontier service decided nothing until the maps were within
 256 steps of the odometry. As many as the inbox holds (``INBOX_LIMIT``): whatever lag the inbox takes without a loss,
 the steps waiting here take too. A partner that is dead (a mapper given up on, a LiDAR driver that stopped) no longer
-grows the service for as long as the episode runs: about 50 MB of odometry at most."""
+grows the service for as long as the episode runs: about 50 MB of odometry at most. Each step dropped is counted as a
+rejection of its topic (``Service.keep_newest_within``, with no byte budget)."""
 
 
 def keep_newest(pending: dict[int, Any], n: int) -> list[int]:

@@ -47,7 +47,6 @@ from services.common import (
     EpisodeWatch,
     Service,
     ServiceContext,
-    keep_newest,
     service_main,
     warm_up_map,
 )
@@ -369,7 +368,7 @@ class FrontierService(Service):
             if msg.phase == "command" and step >= self.done_step - 1:
                 self.feedback[step] = msg
                 if not self.ctx.lockstep:  # no map (a mapper gone): no decision prunes them; a map far behind needs them
-                    keep_newest(self.feedback, PENDING_SMALL_STEPS_KEPT)
+                    self.keep_newest_within("planner_feedback", self.feedback, PENDING_SMALL_STEPS_KEPT, None, "a map after its step", robot)
                 self.try_decide()
             return
         if isinstance(msg, MapMsg) and self.of_another_grid(msg, robot):
@@ -387,7 +386,7 @@ class FrontierService(Service):
         elif isinstance(msg, OdometryMsg):
             self.odoms[step] = msg
             if not self.ctx.lockstep:  # bounded for a mapper gone; 100,000 steps for one far behind (replay --speed max)
-                keep_newest(self.odoms, PENDING_SMALL_STEPS_KEPT)
+                self.keep_newest_within("odom", self.odoms, PENDING_SMALL_STEPS_KEPT, None, "the map of its step", robot)
         self.try_decide()
 
     def end_episode(self, how: str) -> None:

@@ -49,7 +49,6 @@ from services.common import (
     EpisodeWatch,
     Service,
     ServiceContext,
-    keep_newest,
     service_main,
     warm_up_observation,
 )
@@ -325,11 +324,11 @@ class PlannerService(Service):
         if isinstance(msg, OdometryMsg):
             self.odoms[step] = (msg, received_s)
             if not self.ctx.lockstep:  # a LiDAR gone silent must not grow the odometry kept for its scans without bound
-                keep_newest(self.odoms, PENDING_SMALL_STEPS_KEPT)
+                self.keep_newest_within("odom", self.odoms, PENDING_SMALL_STEPS_KEPT, None, "the scan of its step", robot)
         elif isinstance(msg, ScanMsg):
             self.scans[step] = (msg, received_s)
             if not self.ctx.lockstep:  # nor odometry gone silent the scans (large: only the newest pair is commanded)
-                keep_newest(self.scans, PENDING_STEPS_KEPT)
+                self.keep_newest_within("scan", self.scans, PENDING_STEPS_KEPT, None, "the odometry of its step", robot)
         elif isinstance(msg, FrontiersMsg) and (msg.decide or self.ctx.lockstep):
             self.frontiers[step] = msg  # real time needs only those that carry a decision's grids
             if not self.ctx.lockstep:  # the grids it decoded (``PlannerFrontiersMsg``): a decision's frontiers are on one grid
@@ -343,7 +342,7 @@ class PlannerService(Service):
         elif isinstance(msg, GoalMsg) and msg.decided:
             self.goals[step] = msg
             if not self.ctx.lockstep:  # a long pause must not grow them either
-                keep_newest(self.goals, PENDING_DECISIONS_KEPT)
+                self.keep_newest_within("goal", self.goals, PENDING_DECISIONS_KEPT, None, "its decision's frontiers (or the end of a pause)", robot)
         self.progress()
 
     def join_behind(self, step: int) -> None:

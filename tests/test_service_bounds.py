@@ -73,7 +73,8 @@ def test_keep_newest_keeps_the_n_newest_steps_and_trims_once_an_eighth_more_wait
 
 def test_a_real_time_frontier_service_whose_maps_stopped_keeps_a_bounded_number_of_steps_and_decides_on_the_next_map(monkeypatch):
     """The mapper gone (died, given up on): odometry and the planner's reports go on at the control rate, and the
-    frontier service kept every one of them, waiting for its map, for as long as the episode ran."""
+    frontier service kept every one of them, waiting for its map, for as long as the episode ran. Each one it lets go
+    of is counted as a rejection of its topic, for its robot (they were dropped with nothing in its status)."""
     most = _small_bound(monkeypatch)
     frontier, out = _service(FrontierService, lockstep=False)
     ex = _explorer_at(0)
@@ -84,9 +85,12 @@ def test_a_real_time_frontier_service_whose_maps_stopped_keeps_a_bounded_number_
         _feed(frontier, PlannerFeedbackMsg(step, "idle", "command"))
         assert len(frontier.odoms) <= most and len(frontier.feedback) <= most
     assert set(range(last - 63, last + 1)) <= set(frontier.odoms) and set(range(last - 63, last + 1)) <= set(frontier.feedback)
+    dropped = {"odom": last - len(frontier.odoms), "planner_feedback": last - len(frontier.feedback)}
+    assert frontier.rejected == frontier.rejected_by_robot["r0"] == dropped and min(dropped.values()) > 0
     _feed(frontier, MapMsg.of(last, ex.map))  # the mapper back: the newest step is decided at once
     assert [(t, m.step, m.decide) for t, m in out if t == "frontiers"] == [("frontiers", last, True)]
     assert not frontier.odoms and not frontier.maps
+    assert frontier.rejected == dropped  # what a decision lets go of (the steps before it) is no drop
 
 
 def test_a_real_time_frontier_service_whose_maps_lag_far_behind_its_odometry_decides_on_each_map_as_it_comes():
@@ -199,7 +203,8 @@ def test_a_real_time_planner_whose_policy_is_down_keeps_at_most_pending_max_byte
 
 def test_a_real_time_planner_whose_lidar_stopped_keeps_a_bounded_number_of_odometry_steps_and_commands_the_next_scan(monkeypatch):
     """A LiDAR driver that stopped: the planner said it was stale (no scan), and kept every odometry message (50 Hz
-    on a robot) waiting for its scan, for as long as the run went on."""
+    on a robot) waiting for its scan, for as long as the run went on. Each one it lets go of is counted as a rejected
+    ``odom`` of its robot, and the other way round each scan as a rejected ``scan``."""
     most = _small_bound(monkeypatch)
     planner, out = _service(PlannerService, lockstep=False)
     ex = _explorer_at(0)
@@ -208,11 +213,61 @@ def test_a_real_time_planner_whose_lidar_stopped_keeps_a_bounded_number_of_odome
     for step in range(1, last + 1):
         _feed(planner, OdometryMsg(step, odom.stamp_s + 0.1 * step, odom.pose))
         assert len(planner.odoms) <= most
+    dropped = {"odom": last - len(planner.odoms)}
+    assert planner.rejected == planner.rejected_by_robot["r0"] == dropped and dropped["odom"] > 0
     _feed(planner, ScanMsg(last, scan.scan, scan.sensor_pose))
     assert [m.step for t, m in out if t == "cmd_vel"] == [last]
-    for step in range(last + 1, last + 1 + 2 * PENDING_STEPS_KEPT):  # and the other way round
+    assert planner.rejected == dropped  # what a command lets go of (the steps before it) is no drop
+    scans = 2 * PENDING_STEPS_KEPT
+    for step in range(last + 1, last + 1 + scans):  # and the other way round
         _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose))
         assert len(planner.scans) <= PENDING_STEPS_KEPT + PENDING_STEPS_KEPT // 8
+    dropped["scan"] = scans - len(planner.scans)
+    assert planner.rejected == planner.rejected_by_robot["r0"] == dropped and dropped["scan"] > 0
+
+
+def test_a_real_time_planner_whose_goals_find_no_decision_keeps_a_bounded_number_and_counts_each_dropped():
+    """Goals whose decision (frontiers) never came (lost to a full inbox, a frontier service restarted): the planner
+    keeps ``PENDING_DECISIONS_KEPT`` of them, and dropped the older ones with nothing in its status. Each one dropped
+    is counted as a rejected ``goal`` of its robot."""
+    from services.planner import PENDING_DECISIONS_KEPT
+
+    planner, out = _service(PlannerService, lockstep=False)
+    last = 3 * PENDING_DECISIONS_KEPT
+    for step in range(1, last + 1):
+        _feed(planner, GoalMsg(step, True, 1.0, 1.0, 0, 1.0))
+        assert step in planner.goals and len(planner.goals) <= PENDING_DECISIONS_KEPT + PENDING_DECISIONS_KEPT // 8
+    dropped = {"goal": last - len(planner.goals)}
+    assert planner.rejected == planner.rejected_by_robot["r0"] == dropped and dropped["goal"] > 0 and out == []
+
+
+def test_the_steps_one_trim_drops_are_counted_whole_and_logged_in_one_line_at_most(caplog):
+    """A trim of small inputs drops an eighth of 100,000 steps at once (``PENDING_SMALL_STEPS_KEPT``): counted one by
+    one, that was 125 log lines in a burst. All are counted, in one line; inputs rejected one at a time are logged as
+    before, the first five and every hundredth."""
+    from services.common import Service, ServiceContext
+
+    svc = Service(ServiceContext("probe", "t1", {}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {}))
+    pending: dict[int, None] = dict.fromkeys(range(1000))
+    with caplog.at_level("WARNING", logger="cso.service"):
+        svc.keep_newest_within("odom", pending, 800, 1, "the map of its step", "t1")
+        assert sorted(pending) == list(range(200, 1000))
+        assert svc.rejected == svc.rejected_by_robot["t1"] == {"odom": 200}
+        why = "odom of 200 steps (0 to 199) dropped unused: the map of its step did not come while 800 newer ones waited"
+        assert [r.getMessage() for r in caplog.records] == [
+            f"{svc.name}: rejected payload on odom (200 so far): {why} (at most 800, and 256 MiB: 0.0 MiB each)"
+        ]
+        caplog.clear()
+        svc.keep_newest_within("odom", pending, 800, None, "the map of its step", "t1")  # within the bound: nothing
+        pending.update(dict.fromkeys(range(1000, 1101)))
+        svc.keep_newest_within("odom", pending, 800, None, "the map of its step")  # 101 more: past 300, logged again
+        assert svc.rejected == {"odom": 301} and svc.rejected_by_robot == {"t1": {"odom": 200}} and len(pending) == 800
+        why = "odom of 101 steps (200 to 300) dropped unused: the map of its step did not come while 800 newer ones waited"
+        assert [r.getMessage() for r in caplog.records] == [f"{svc.name}: rejected payload on odom (301 so far): {why} (at most 800)"]
+        caplog.clear()
+        for _ in range(250):
+            svc.reject("scan", "a bad one", "t1")
+        assert [r.getMessage() for r in caplog.records] == [f"{svc.name}: rejected payload on scan ({n} so far): a bad one" for n in (1, 2, 3, 4, 5, 100, 200)]
 
 
 def test_a_real_time_planner_whose_scans_lag_far_behind_its_odometry_commands_each_scan_as_it_comes():
