@@ -462,6 +462,12 @@ class Launcher:
         (``seen_at_router``; while it runs when it joined as a client), so that a run starting meanwhile is refused."""
         self.run_file_unwritten = False
         """The last write of the run file failed (a full disk): said once, until a write works again."""
+        self.run_file_state = "starting"
+        """The state the run file was last written with (``write_run_file``): the run folder made again
+        (``tend_run_folder``) says it as it was, a run still starting too, not "running" before its router is open."""
+        self.current_run_named = False
+        """Whether the runs folder's current-run file has named this run (``write_run_file``): until then run.json goes
+        first, so that a reader led to the run by the current-run file (``logs -f``) finds its run.json."""
         self.router_lost_at: float | None = None
         """``time.monotonic()`` when the launcher's session lost its route to a router it joined (``--connect``: the
         robot's), while it is lost (``router_is_reachable``)."""
@@ -492,6 +498,7 @@ class Launcher:
         router opens); ``running`` after the episode ended is its end state."""
         if state == "running" and self.episode_state is not None:
             state = self.episode_state
+        self.run_file_state = state
         info = {
             "run_id": self.run_id,
             "run_dir": str(self.run_dir.resolve()),
@@ -527,8 +534,11 @@ class Launcher:
         text = json.dumps(info, indent=2)
         # The current-run file first: `up --detach` says "started" once run.json names the services and endpoints, and a
         # script's `status` right after reads current.json, which was then still the "starting" one with no endpoints
-        # (its client had nothing to connect to) when the launcher was slow to write it (a busy host).
-        for path in (self.run_dir.parent / CURRENT_RUN, self.run_dir / "run.json"):
+        # (its client had nothing to connect to) when the launcher was slow to write it (a busy host). But not before
+        # the run has a run.json: `logs -f` goes from the current-run file to the run's run.json, and, finding none
+        # there (its first write, "starting"), took the run for ended and left at once.
+        current, run_json = self.run_dir.parent / CURRENT_RUN, self.run_dir / "run.json"
+        for path in (current, run_json) if self.current_run_named else (run_json, current):
             try:
                 write_text_atomic(path, text)
             except OSError as exc:  # a full disk: the run goes on, `status` and `down` go by the file written before
@@ -539,6 +549,7 @@ class Launcher:
                     )  # fmt: skip
                 self.run_file_unwritten = True
                 return
+            self.current_run_named = self.current_run_named or path == current
         self.run_file_unwritten = False
 
     def outcome(self) -> str:
@@ -1039,7 +1050,7 @@ class Launcher:
             return
         pids = [os.getpid(), *(c.proc.pid for c in self.children if c.alive and c.proc is not None)]
         rescued = watch.rescue(pids)
-        self.write_run_file("running")
+        self.write_run_file(self.run_file_state)  # a run still starting is still starting: "running" had no endpoints yet
         closed = "its results and " if self.written_result is not None else ""
         log.error(
             "the run folder %s (or its %s/) was deleted while the run ran: made it again, with run.json, profile.yaml and "
@@ -1962,6 +1973,8 @@ def _wait_for_detached(
         while time.monotonic() < deadline and not stop.is_set():
             try:
                 info = json.loads((run_dir / "run.json").read_text())
+                if info.get("state") == "stopped":  # ended before this look (its services failed at once, `down`): it said "started"
+                    return _detached_start_stopped(proc, info, run_dir, log_path)
                 if info.get("services") and info.get("endpoints"):
                     follow = runs_command("logs -f", run_dir.parent)  # of this runs folder: a plain `logs -f` reads ./runs
                     return 0, (
@@ -1983,6 +1996,24 @@ def _wait_for_detached(
         return EXIT_INTERRUPTED, f"interrupted while the launcher started: stopped it (launcher pid {proc.pid}); see {log_path}"
     _stop_unstarted_launcher(proc, Launcher(profile, data, run_dir, record_path, animate), 1)
     return 1, f"the launcher did not start within {ready_timeout_s:.0f} s: stopped it; see {log_path}"
+
+
+DETACHED_EXIT_WAIT_S = 10.0
+"""How long ``up --detach`` waits for a launcher that has ended its run (run.json ``stopped``) to exit, for its log's end."""
+
+
+def _detached_start_stopped(proc: subprocess.Popen, info: dict[str, Any], run_dir: Path, log_path: Path) -> tuple[int, str]:
+    """``start_detached``'s answer when the launcher's run.json already says the run stopped (it failed at once, or
+    ``down`` stopped it) by the time ``up --detach`` looked: how it ended and the run's exit code (``status --watch``'s
+    ``run_end_exit_code``), not "started", exit 0, of a run that is over. Its launcher, exiting, is waited for a while."""
+    from cso_runtime.status import run_end_exit_code  # noqa: PLC0415 - only for this answer
+
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        proc.wait(timeout=DETACHED_EXIT_WAIT_S)
+    reason = f" ({info['reason']})" if info.get("reason") else ""
+    return run_end_exit_code(info), (
+        f"run {run_dir.name} stopped as it started: {info.get('outcome') or 'failed'}{reason} (launcher pid {proc.pid}); see {log_path}:\n{log_tail(log_path)}"
+    )
 
 
 def log_tail(path: Path, tail_chars: int = 2000) -> str:

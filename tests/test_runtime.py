@@ -1476,6 +1476,36 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
             kill_leftovers(runs, [p.pid for p in started])
 
 
+def test_up_detach_says_how_a_run_that_stopped_before_it_looked_ended_not_that_it_started(tmp_path):
+    """``up --detach`` said "started" (exit 0) once run.json named services and endpoints, before it looked at its
+    launcher's exit: a run that stopped between two of its looks (its services given up on at once, a ``down``) left a
+    run.json that names them too, state ``stopped``, and ``up --detach`` said "started" of a run that was over. It says
+    how the run ended, with its exit code."""
+    from cso_runtime.launcher import _wait_for_detached
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    run_dir = tmp_path / "runs" / "run1"
+    (run_dir / "logs").mkdir(parents=True)
+    log_path = run_dir / "logs" / "launcher.log"
+    log_path.write_text("the sim service is gone for good: stopping\n")
+    stopped = {
+        "run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "state": "stopped",
+        "services": {"sim": {"pid": None, "start_ticks": None, "restarts": 3, "gave_up": True}},
+        "outcome": "failed", "exit_code": 1, "reason": "gave up on sim: exit code 1",
+    }  # fmt: skip
+    (run_dir / "run.json").write_text(json.dumps(stopped))
+    proc = subprocess.Popen([sys.executable, "-c", "raise SystemExit(1)"])  # the launcher, ending the run it stopped
+    try:
+        code, message = _wait_for_detached(proc, profile, data, run_dir, None, False, log_path, 5.0, threading.Event())
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert code == 1 and message.startswith("run run1 stopped as it started: failed (gave up on sim: exit code 1)"), (code, message)
+    assert "the sim service is gone for good" in message and "started (launcher pid" not in message, message
+    assert json.loads((run_dir / "run.json").read_text()) == stopped  # its launcher's own account, kept
+
+
 def test_down_while_a_detached_launcher_starts_stops_it(tmp_path, monkeypatch):
     """``down`` in the seconds between ``up --detach`` spawning its launcher and the launcher writing ``current.json``
     (its imports: 3 s on a loaded 2-core host; found by a fault-injection soak) answered "nothing running", exit 1, and
@@ -2400,11 +2430,67 @@ def test_the_current_run_file_is_written_before_run_json_which_up_detach_waits_f
         write(path, text)
 
     monkeypatch.setattr(launcher_module, "write_text_atomic", checked)
+    launcher.write_run_file("starting")  # run.json first, this once (test_a_run_has_its_run_json_before_...)
+    launcher.endpoints = ["tcp/127.0.0.1:7447"]
+    launcher.write_run_file("running")
+    launcher.write_run_file("stopped")
+    assert seen == [("run.json", False), ("run.json", True), ("run.json", True)]
+    assert json.loads((launcher.run_dir / "run.json").read_text())["endpoints"] == ["tcp/127.0.0.1:7447"]
+
+
+def test_a_run_has_its_run_json_before_the_current_run_file_names_it_for_logs_follow(tmp_path, monkeypatch):
+    """``logs -f`` goes from the current-run file to the run's run.json (``logs_grow``: is it still going on?). With the
+    current-run file written first on the launcher's first write too ("starting"), ``logs -f`` at that moment found the
+    run's folder and no run.json in it, took the run for ended, printed the launcher's first lines and "run ... has
+    ended", and left. Whenever the current-run file names the run, the run has a run.json."""
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.runs import logs_grow, resolve_run
+
+    runs = tmp_path / "runs"
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, runs / "run")
+    (launcher.run_dir / "logs").mkdir(parents=True)
+    (launcher.run_dir / "logs" / "launcher.log").write_text("")
+    write = launcher_module.write_text_atomic
+    followed: list[bool] = []
+
+    def checked(path: Path, text: str) -> None:
+        write(path, text)
+        if path.name == "current.json":  # `logs -f` just now
+            followed.append(resolve_run(runs) == launcher.run_dir and logs_grow(launcher.run_dir))
+
+    monkeypatch.setattr(launcher_module, "write_text_atomic", checked)
     launcher.write_run_file("starting")
     launcher.endpoints = ["tcp/127.0.0.1:7447"]
     launcher.write_run_file("running")
-    assert seen == [("run.json", True), ("run.json", True)]
-    assert json.loads((launcher.run_dir / "run.json").read_text())["endpoints"] == ["tcp/127.0.0.1:7447"]
+    assert followed == [True, True], followed
+
+
+def test_a_run_folder_made_again_while_the_run_starts_says_starting_not_running(tmp_path, capsys):
+    """The run folder deleted as ``up`` started (``tend_run_folder`` makes it again before the router opens) wrote the run
+    file as "running", with no endpoints yet: ``status`` said "nothing running (no current run in runs ...)" of a run
+    that was starting, and ``status --watch`` ended there. The run file made again says the state it had."""
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.status import status_main
+
+    runs = tmp_path / "runs"
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, runs / "run")
+    launcher.run_dir.mkdir(parents=True)
+    launcher.write_run_file("starting")
+    shutil.rmtree(launcher.run_dir)
+    try:
+        launcher.tend_run_folder(lost=True)
+    finally:
+        launcher.run_folder.close()
+    for path in (runs / "current.json", launcher.run_dir / "run.json"):
+        assert json.loads(path.read_text())["state"] == "starting", path
+    capsys.readouterr()
+    assert status_main([], None, False, False, runs, 1.0) == 1
+    assert capsys.readouterr().out == "run run (robot r0) is starting: its router is not open yet; ask again in a moment\n"
 
 
 def _fake_result(method: str = "greedy-dist", steps: int = 10):
@@ -3807,6 +3893,33 @@ def test_status_says_a_run_is_starting_before_its_router_is_open(tmp_path, monke
     assert said["save-map"][0] == 1 and "is starting" in str(said["save-map"][1]) and not (tmp_path / "map.yaml").exists(), said["save-map"]
     assert said["attach"][0] == 2 and "--attach: run run1 (robot r1) is starting" in str(said["attach"][1]), said["attach"]
     assert not (runs / "current.json").exists() and json.loads((runs / "run1" / "run.json").read_text())["state"] == "stopped"
+
+
+def test_status_save_map_and_pause_of_a_run_whose_launcher_has_ended_it_say_so(tmp_path, monkeypatch, capsys):
+    """As it ends a run the launcher writes its run file ``stopped`` and then removes it: ``status`` in between (a
+    script polling it, ``status --watch`` started then) said "nothing running (no current run in runs; give --runs-dir
+    of the folder `up` used ...)" of a run that failed as it started, and of one that ran, waited out a client's
+    timeout on its closing router to say "no answer". They say the run has ended, at once."""
+    from cso_runtime import status
+    from cso_runtime.status import explore_resume_main, save_map_main, status_main
+
+    asked: list[list[str]] = []
+    monkeypatch.setattr(status, "_client_session", lambda connect, zenoh_config_file=None: asked.append(connect))  # None: nothing there
+    runs = tmp_path / "runs"
+    for endpoints in ([], [loopback_endpoint(free_tcp_port())]):
+        _, starting = starting_run_files(runs, os.getpid())
+        ended = {**starting, "endpoints": endpoints, "state": "stopped", "outcome": "failed", "exit_code": 3}
+        (runs / "current.json").write_text(json.dumps(ended))
+        line = f"run run1 has ended (failed) and its launcher is exiting; `cso-runtime runs --runs-dir {runs}` lists it"
+        capsys.readouterr()
+        assert status_main([], None, False, False, runs, 1.0) == 1
+        assert capsys.readouterr().out == f"nothing running ({line})\n"
+        assert status_main([], None, True, True, runs, 0.1) == 1
+        assert json.loads(capsys.readouterr().out) == {"state": "not running", "reason": f"nothing running ({line})"}
+        assert save_map_main([], None, tmp_path / "map", "pgm", runs) == 1 and line in capsys.readouterr().out
+        assert explore_resume_main([], None, runs, resume=False) == 1 and line in capsys.readouterr().out
+        assert asked == [], "asked a router that is closing"
+        shutil.rmtree(runs)
 
 
 def test_status_names_an_up_still_checking_its_profile_and_watch_waits_for_it(tmp_path):
