@@ -465,6 +465,11 @@ class Launcher:
         self.run_file_state = "starting"
         """The state the run file was last written with (``write_run_file``): the run folder made again
         (``tend_run_folder``) says it as it was, a run still starting too, not "running" before its router is open."""
+        self.writes_current_run = True
+        """Whether this launcher's run file goes to the runs folder's current-run file too. False for the run of a
+        launcher that ``up --detach`` gave up on, ended from ``up`` (``_stop_unstarted_launcher``): that file is the
+        running launcher's, by then maybe another run's, which writing it "stopped" and removing it took from ``status``
+        and ``down``; its run.json alone is written."""
         self.current_run_named = False
         """Whether the runs folder's current-run file has named this run (``write_run_file``): until then run.json goes
         first, so that a reader led to the run by the current-run file (``logs -f``) finds its run.json."""
@@ -538,7 +543,8 @@ class Launcher:
         # the run has a run.json: `logs -f` goes from the current-run file to the run's run.json, and, finding none
         # there (its first write, "starting"), took the run for ended and left at once.
         current, run_json = self.run_dir.parent / CURRENT_RUN, self.run_dir / "run.json"
-        for path in (current, run_json) if self.current_run_named else (run_json, current):
+        paths = (current, run_json) if self.current_run_named else (run_json, current)
+        for path in paths if self.writes_current_run else (run_json,):
             try:
                 write_text_atomic(path, text)
             except OSError as exc:  # a full disk: the run goes on, `status` and `down` go by the file written before
@@ -572,6 +578,8 @@ class Launcher:
         return exit_code
 
     def remove_current_pointer(self) -> None:
+        if not self.writes_current_run:
+            return
         cur = self.run_dir.parent / CURRENT_RUN
         try:
             if json.loads(cur.read_text()).get("run_id") == self.run_id:
@@ -2039,6 +2047,9 @@ def _stop_unstarted_launcher(proc: subprocess.Popen, run: Launcher, exit_code: i
     except (OSError, ValueError):
         pass
     run.launcher_pid = proc.pid
+    # run.json only: the current-run file no longer names this run (down cleared it above), and another `up` of the folder
+    # may have started since its launcher died: written "stopped" and removed, it left that run to no `status` or `down`.
+    run.writes_current_run = False
     run.stop_before_start(exit_code)
 
 

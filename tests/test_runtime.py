@@ -1506,6 +1506,30 @@ def test_up_detach_says_how_a_run_that_stopped_before_it_looked_ended_not_that_i
     assert json.loads((run_dir / "run.json").read_text()) == stopped  # its launcher's own account, kept
 
 
+def test_up_detach_ending_a_launcher_it_gave_up_on_leaves_another_runs_current_file_alone(tmp_path):
+    """``up --detach`` that stops a launcher it gave up on (killed as it started, Ctrl-C, too slow) writes that run's end
+    for it. It wrote it to the current-run file too, and then removed that file: a run another ``up`` had started in the
+    folder once that launcher was gone (its lock free) lost its current-run file, and ``status`` and ``down`` no longer
+    found it. Only the stopped run's run.json is written; the current-run file is the running launcher's."""
+    from cso_runtime.config import EXIT_INTERRUPTED
+    from cso_runtime.launcher import Launcher, _stop_unstarted_launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    runs = tmp_path / "runs"
+    _, other = starting_run_files(runs, os.getpid())  # the run started since, its launcher alive
+    other = {**other, "state": "running", "endpoints": [loopback_endpoint(7447)]}
+    (runs / "current.json").write_text(json.dumps(other))
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    given_up = Launcher(profile, data, runs / "20261206-115959-lockstep-r0")
+    given_up.run_dir.mkdir()
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])  # its launcher, killed before it wrote its run file
+    proc.wait(timeout=30)
+    _stop_unstarted_launcher(proc, given_up, EXIT_INTERRUPTED)
+    assert json.loads((runs / "current.json").read_text()) == other
+    ended = json.loads((given_up.run_dir / "run.json").read_text())
+    assert (ended["state"], ended["outcome"], ended["launcher_pid"]) == ("stopped", "interrupted", proc.pid), ended
+
+
 def test_down_while_a_detached_launcher_starts_stops_it(tmp_path, monkeypatch):
     """``down`` in the seconds between ``up --detach`` spawning its launcher and the launcher writing ``current.json``
     (its imports: 3 s on a loaded 2-core host; found by a fault-injection soak) answered "nothing running", exit 1, and
