@@ -3926,6 +3926,7 @@ def test_status_save_map_and_pause_of_a_run_whose_launcher_has_ended_it_say_so(t
     timeout on its closing router to say "no answer". They say the run has ended, at once."""
     from cso_runtime import status
     from cso_runtime.status import explore_resume_main, save_map_main, status_main
+    from services.common import parse_args
 
     asked: list[list[str]] = []
     monkeypatch.setattr(status, "_client_session", lambda connect, zenoh_config_file=None: asked.append(connect))  # None: nothing there
@@ -3943,7 +3944,32 @@ def test_status_save_map_and_pause_of_a_run_whose_launcher_has_ended_it_say_so(t
         assert save_map_main([], None, tmp_path / "map", "pgm", runs) == 1 and line in capsys.readouterr().out
         assert explore_resume_main([], None, runs, resume=False) == 1 and line in capsys.readouterr().out
         assert asked == [], "asked a router that is closing"
+        with pytest.raises(SystemExit) as exited:  # `cso-runtime service NAME --attach`: nothing to join any more
+            parse_args("foxglove_bridge", ["--attach", "--runs-dir", str(runs)])
+        assert exited.value.code == 2 and f"--attach: {line}" in capsys.readouterr().err
         shutil.rmtree(runs)
+
+
+def test_a_service_attached_as_up_checks_its_profile_says_that_up_is_starting_not_no_current_run(tmp_path, capsys):
+    """``cso-runtime up & python -m services.NAME --attach``: for the ``up``'s first second or more it has written no run
+    file, and ``--attach`` said "no current run in runs (start one with `cso-runtime up` ...)" of the run being started.
+    It names the ``up`` that is starting, as ``status`` does (still exit 2: nothing to join yet)."""
+    from cso_runtime.current_run import starting_up_path
+    from cso_runtime.supervision import process_start_ticks
+    from services.common import parse_args
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # an `up` checking its profile
+    try:
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+        with pytest.raises(SystemExit) as exited:
+            parse_args("foxglove_bridge", ["--attach", "--runs-dir", str(runs)])
+    finally:
+        up.kill()
+        up.wait(timeout=30)
+    err = capsys.readouterr().err
+    assert exited.value.code == 2 and f"--attach: `up` (pid {up.pid}) is starting in {runs}" in err, err
 
 
 def test_status_names_an_up_still_checking_its_profile_and_watch_waits_for_it(tmp_path):
