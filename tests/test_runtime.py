@@ -1506,6 +1506,32 @@ def test_up_detach_says_how_a_run_that_stopped_before_it_looked_ended_not_that_i
     assert json.loads((run_dir / "run.json").read_text()) == stopped  # its launcher's own account, kept
 
 
+def test_up_detach_of_a_launcher_killed_after_it_spawned_its_services_does_not_say_started(tmp_path):
+    """``up --detach`` read run.json before it looked at its launcher: a launcher killed (SIGKILL: out of memory, a
+    user's ``kill -9``) after it wrote that its services and router are up left run.json saying so, and ``up --detach``
+    said "started", exit 0, of a run with no launcher. It looks at its launcher first: killed, it cleans the run up
+    (its services, its current-run file) and says so."""
+    from cso_runtime.config import EXIT_INTERRUPTED
+    from cso_runtime.launcher import _wait_for_detached
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    runs = tmp_path / "runs"
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])  # the launcher, killed
+    proc.kill()
+    proc.wait(timeout=30)
+    run_dir, starting = starting_run_files(runs, proc.pid)
+    running = {**starting, "run_id": run_dir.name, "state": "running", "endpoints": [loopback_endpoint(7447)],
+               "services": {"sim": {"pid": None, "start_ticks": None, "restarts": 0, "gave_up": False}}}  # fmt: skip
+    for path in (runs / "current.json", run_dir / "run.json"):
+        path.write_text(json.dumps(running))
+    (run_dir / "logs").mkdir()
+    code, message = _wait_for_detached(proc, profile, data, run_dir, None, False, run_dir / "logs" / "launcher.log", 5.0, threading.Event())
+    assert code == EXIT_INTERRUPTED and message.startswith(f"the launcher (pid {proc.pid}) was stopped as it started"), (code, message)
+    assert not (runs / "current.json").exists()  # nothing `status` or `down` takes for a running run
+    assert json.loads((run_dir / "run.json").read_text())["state"] == "stopped"
+
+
 def test_up_detach_ending_a_launcher_it_gave_up_on_leaves_another_runs_current_file_alone(tmp_path):
     """``up --detach`` that stops a launcher it gave up on (killed as it started, Ctrl-C, too slow) writes that run's end
     for it. It wrote it to the current-run file too, and then removed that file: a run another ``up`` had started in the
