@@ -4928,6 +4928,26 @@ def test_status_watch_of_a_starting_run_ends_when_its_launcher_dies_or_its_start
             assert said[-1] == f"run run1 ended: failed, exit code 3; its folder: {run_dir}/ (the logs in {run_dir / 'logs'}/)", said
 
 
+def test_down_after_a_dead_launcher_writes_how_its_run_ended_before_it_clears_the_current_run_file(tmp_path, monkeypatch):
+    """``down`` of a run whose launcher died removed the current-run file and only then wrote in run.json that the run
+    ended: ``status --watch`` waiting on that starting run, finding no current-run file in between, read run.json still
+    "starting" and ended with "nothing running (no current run ...)" instead of how the run ended. run.json says it
+    first, as the launcher's own end does (``Launcher.stop_before_start``)."""
+    from cso_runtime import current_run
+
+    runs = tmp_path / "runs"
+    launcher = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    launcher.kill()
+    launcher.wait(timeout=30)
+    run_dir, _ = starting_run_files(runs, launcher.pid)
+    record = current_run.record_launcher_died
+    pointer_there: list[bool] = []
+    monkeypatch.setattr(current_run, "record_launcher_died", lambda info: (pointer_there.append((runs / "current.json").exists()), record(info))[1])
+    stopped, said = current_run.down(runs, timeout_s=0.0)
+    assert stopped and "had already exited" in said and pointer_there == [True], (said, pointer_there)
+    assert not (runs / "current.json").exists() and json.loads((run_dir / "run.json").read_text())["state"] == "stopped"
+
+
 def test_status_watch_of_a_run_stopped_before_its_episode_ended_says_where_its_map_so_far_is(tmp_path, capsys):
     """``status --watch`` of a run stopped by ``down`` (or Ctrl-C) ended with "its folder: RUN/ (the logs in ...)" and
     nothing of the one result such a run keeps, its map so far (``up``'s own last line names it): it names it now,
