@@ -1982,7 +1982,9 @@ def _wait_for_detached(
             info: Any = None
             with contextlib.suppress(OSError, ValueError):
                 info = json.loads((run_dir / "run.json").read_text())
-            if isinstance(info, dict) and info.get("state") == "stopped":  # ended before this look (its services failed at once, `down`)
+            # Ended before this look, after it spawned its services (they failed at once, a `down`): not "started". One that
+            # spawned none (refused, no router) exits with its own code, said below as `up` says it.
+            if isinstance(info, dict) and info.get("state") == "stopped" and info.get("services"):
                 return _detached_start_stopped(proc, info, run_dir, log_path)
             # Its exit before its run.json: a launcher killed (SIGKILL) after it spawned its services left a run.json that
             # names them, and `up --detach` said "started" (exit 0) of a run with no launcher, its services orphaned.
