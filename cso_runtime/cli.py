@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from cso_runtime.learned.ppo import Args
     from cso_runtime.run_profile import Profile
     from cso_runtime.runs import LogLine
+    from cso_runtime.status import RunTarget
 
 app = typer.Typer(
     name="cso-runtime",
@@ -564,16 +565,18 @@ def record_command(
     from cso_runtime.keys import KeyExprError, check_robot_id  # noqa: PLC0415
     from cso_runtime.processes import set_from_signal_handler, stop_signals  # noqa: PLC0415
     from cso_runtime.recording import names_a_folder, record, recording_path  # noqa: PLC0415
-    from cso_runtime.status import AmbiguousRobotError, RunTarget, client_transport, endpoints_from_run_file, robot_at_endpoint  # noqa: PLC0415
+    from cso_runtime.status import AmbiguousRobotError, RunTarget, client_transport, robot_at_endpoint  # noqa: PLC0415
     from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
 
     if out is not None and not names_a_folder(out) and Path(out).exists():  # said with no run too, as replay's flags
         _fail(f"{out} exists; give another --out, or remove it first", 2)
-    endpoints, run_robot, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
+    (endpoints, run_robot, zenoh_config_file), not_yet = (RunTarget(list(connect), None, None), "") if connect else _current_run_target(runs_dir)
     try:  # before connecting: a bad id is a usage error whether or not a router answers
         check_robot_id(robot or run_robot or "r0", allow_wildcard=True)
     except KeyExprError as exc:
         _fail(f"--robot: {exc}", 2)
+    if not_yet:
+        _fail(not_yet, 1)
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
     _endpoints_or_exit(endpoints, zenoh_config_file)
@@ -621,7 +624,7 @@ def replay_command(
     from cso_runtime.keys import TOPICS  # noqa: PLC0415
     from cso_runtime.processes import set_from_signal_handler, stop_signals  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, ReplayRefused, check_chunks, parse_speed, replay  # noqa: PLC0415
-    from cso_runtime.status import RunTarget, client_transport, endpoints_from_run_file  # noqa: PLC0415
+    from cso_runtime.status import RunTarget, client_transport  # noqa: PLC0415
     from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
 
     try:
@@ -640,7 +643,9 @@ def replay_command(
     except ValueError as exc:
         _fail(str(exc), 2)
     # the flags, then where to replay into: a bad --speed is said with no run too, not only once a run is found
-    endpoints, _, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
+    (endpoints, _, zenoh_config_file), not_yet = (RunTarget(list(connect), None, None), "") if connect else _current_run_target(runs_dir)
+    if not_yet:
+        _fail(not_yet, 1)
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
     _endpoints_or_exit(endpoints, zenoh_config_file)
@@ -662,6 +667,20 @@ def replay_command(
         typer.echo(f"  published as the current version, recorded in an older one: {', '.join(f'{k} {n}' for k, n in sorted(stats.upgraded.items()))}")
     if stats.unreadable:
         typer.echo(f"  published as recorded, not readable by this build: {', '.join(f'{k} {n}' for k, n in sorted(stats.unreadable.items()))}")
+
+
+def _current_run_target(runs_dir: Path) -> tuple[RunTarget, str]:
+    """The current run's router, robot and Zenoh config (``status.endpoints_of_run``), for ``record`` and ``replay``, of
+    one read of its run file, and why it cannot be joined though it lives ("" where it can, or there is none:
+    ``status.current_run_not_joinable``, starting, or ended and its launcher exiting), which they say (exit 1): ``up ...
+    &`` then ``record`` said "no current run; give --connect ENDPOINT" (exit 2, a usage error) of a run whose router
+    was opening."""
+    from cso_runtime.current_run import read_current_run  # noqa: PLC0415
+    from cso_runtime.status import current_run_not_joinable, endpoints_of_run  # noqa: PLC0415
+
+    info = read_current_run(runs_dir)
+    not_yet = current_run_not_joinable(info, runs_dir)
+    return endpoints_of_run(info), not_yet.said if not_yet is not None else ""
 
 
 def _endpoints_or_exit(endpoints: list[str], zenoh_config_file: str | None) -> None:

@@ -289,17 +289,17 @@ def down(runs_dir: Path, timeout_s: float | None = None, stop_starting: bool = T
     deadline = time.monotonic() + 2.0  # SIGKILL is not instant: a process goes once the kernel has reaped it
     while any(pid_alive(p) for p in (pid, *killed)) and time.monotonic() < deadline:
         time.sleep(0.05)
+    left = [p for p in [pid, *service_pids] if pid_alive(p)]
+    if not left and not launcher_alive:  # before its current-run file goes: a reader that finds none (`status --watch` of
+        record_launcher_died(info)  # a starting run) reads its run.json for how it ended, and found it still "starting"
     try:
         cur = read_current_run(runs_dir)
         if cur is not None and cur.get("run_id") == info.get("run_id"):
             (runs_dir / CURRENT_RUN).unlink()
     except OSError:
         pass
-    left = [p for p in [pid, *service_pids] if pid_alive(p)]
     if left:
         return False, "; ".join([f"processes still running: {left}", *starting])
-    if not launcher_alive:
-        record_launcher_died(info)
     notes = ["its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop"] if continued else []
     if not launcher_alive:  # killed, crashed, a reboot: nothing of the run was stopped here but its leftovers
         leftovers = f"killed the {len(killed)} service(s) it left running; " if killed else ""

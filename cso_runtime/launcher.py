@@ -462,6 +462,17 @@ class Launcher:
         (``seen_at_router``; while it runs when it joined as a client), so that a run starting meanwhile is refused."""
         self.run_file_unwritten = False
         """The last write of the run file failed (a full disk): said once, until a write works again."""
+        self.run_file_state = "starting"
+        """The state the run file was last written with (``write_run_file``): the run folder made again
+        (``tend_run_folder``) says it as it was, a run still starting too, not "running" before its router is open."""
+        self.writes_current_run = True
+        """Whether this launcher's run file goes to the runs folder's current-run file too. False for the run of a
+        launcher that ``up --detach`` gave up on, ended from ``up`` (``_stop_unstarted_launcher``): that file is the
+        running launcher's, by then maybe another run's, which writing it "stopped" and removing it took from ``status``
+        and ``down``; its run.json alone is written."""
+        self.current_run_named = False
+        """Whether the runs folder's current-run file has named this run (``write_run_file``): until then run.json goes
+        first, so that a reader led to the run by the current-run file (``logs -f``) finds its run.json."""
         self.router_lost_at: float | None = None
         """``time.monotonic()`` when the launcher's session lost its route to a router it joined (``--connect``: the
         robot's), while it is lost (``router_is_reachable``)."""
@@ -492,6 +503,7 @@ class Launcher:
         router opens); ``running`` after the episode ended is its end state."""
         if state == "running" and self.episode_state is not None:
             state = self.episode_state
+        self.run_file_state = state
         info = {
             "run_id": self.run_id,
             "run_dir": str(self.run_dir.resolve()),
@@ -527,8 +539,12 @@ class Launcher:
         text = json.dumps(info, indent=2)
         # The current-run file first: `up --detach` says "started" once run.json names the services and endpoints, and a
         # script's `status` right after reads current.json, which was then still the "starting" one with no endpoints
-        # (its client had nothing to connect to) when the launcher was slow to write it (a busy host).
-        for path in (self.run_dir.parent / CURRENT_RUN, self.run_dir / "run.json"):
+        # (its client had nothing to connect to) when the launcher was slow to write it (a busy host). But not before
+        # the run has a run.json: `logs -f` goes from the current-run file to the run's run.json, and, finding none
+        # there (its first write, "starting"), took the run for ended and left at once.
+        current, run_json = self.run_dir.parent / CURRENT_RUN, self.run_dir / "run.json"
+        paths = (current, run_json) if self.current_run_named else (run_json, current)
+        for path in paths if self.writes_current_run else (run_json,):
             try:
                 write_text_atomic(path, text)
             except OSError as exc:  # a full disk: the run goes on, `status` and `down` go by the file written before
@@ -539,6 +555,7 @@ class Launcher:
                     )  # fmt: skip
                 self.run_file_unwritten = True
                 return
+            self.current_run_named = self.current_run_named or path == current
         self.run_file_unwritten = False
 
     def outcome(self) -> str:
@@ -561,6 +578,8 @@ class Launcher:
         return exit_code
 
     def remove_current_pointer(self) -> None:
+        if not self.writes_current_run:
+            return
         cur = self.run_dir.parent / CURRENT_RUN
         try:
             if json.loads(cur.read_text()).get("run_id") == self.run_id:
@@ -1039,7 +1058,7 @@ class Launcher:
             return
         pids = [os.getpid(), *(c.proc.pid for c in self.children if c.alive and c.proc is not None)]
         rescued = watch.rescue(pids)
-        self.write_run_file("running")
+        self.write_run_file(self.run_file_state)  # a run still starting is still starting: "running" had no endpoints yet
         closed = "its results and " if self.written_result is not None else ""
         log.error(
             "the run folder %s (or its %s/) was deleted while the run ran: made it again, with run.json, profile.yaml and "
@@ -1960,21 +1979,26 @@ def _wait_for_detached(
     deadline = time.monotonic() + ready_timeout_s
     try:
         while time.monotonic() < deadline and not stop.is_set():
-            try:
+            info: Any = None
+            with contextlib.suppress(OSError, ValueError):
                 info = json.loads((run_dir / "run.json").read_text())
-                if info.get("services") and info.get("endpoints"):
-                    follow = runs_command("logs -f", run_dir.parent)  # of this runs folder: a plain `logs -f` reads ./runs
-                    return 0, (
-                        f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'} "
-                        f"({follow} follows them), results in {run_dir}/ once its episode ends"
-                    )
-            except (OSError, ValueError):
-                pass
+            # Ended before this look, after it spawned its services (they failed at once, a `down`): not "started". One that
+            # spawned none (refused, no router) exits with its own code, said below as `up` says it.
+            if isinstance(info, dict) and info.get("state") == "stopped" and info.get("services"):
+                return _detached_start_stopped(proc, info, run_dir, log_path)
+            # Its exit before its run.json: a launcher killed (SIGKILL) after it spawned its services left a run.json that
+            # names them, and `up --detach` said "started" (exit 0) of a run with no launcher, its services orphaned.
             if proc.poll() in (-signal.SIGTERM, -signal.SIGKILL):  # `down` as it started (STARTING_LAUNCHER), before its handlers
                 _stop_unstarted_launcher(proc, Launcher(profile, data, run_dir, record_path, animate), EXIT_INTERRUPTED)
                 return EXIT_INTERRUPTED, f"the launcher (pid {proc.pid}) was stopped as it started (`cso-runtime down`?): no run was started; see {log_path}"
             if proc.poll() is not None:  # its own code (2: refused, 3: no router), so `up --detach` says the same as `up`
                 return proc.returncode or 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_tail(log_path)}"
+            if isinstance(info, dict) and info.get("services") and info.get("endpoints"):
+                follow = runs_command("logs -f", run_dir.parent)  # of this runs folder: a plain `logs -f` reads ./runs
+                return 0, (
+                    f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'} "
+                    f"({follow} follows them), results in {run_dir}/ once its episode ends"
+                )
             stop.wait(0.05)
     except KeyboardInterrupt:  # Ctrl-C while waiting, without up's handlers: the same as with them
         stop.set()
@@ -1983,6 +2007,24 @@ def _wait_for_detached(
         return EXIT_INTERRUPTED, f"interrupted while the launcher started: stopped it (launcher pid {proc.pid}); see {log_path}"
     _stop_unstarted_launcher(proc, Launcher(profile, data, run_dir, record_path, animate), 1)
     return 1, f"the launcher did not start within {ready_timeout_s:.0f} s: stopped it; see {log_path}"
+
+
+DETACHED_EXIT_WAIT_S = 10.0
+"""How long ``up --detach`` waits for a launcher that has ended its run (run.json ``stopped``) to exit, for its log's end."""
+
+
+def _detached_start_stopped(proc: subprocess.Popen, info: dict[str, Any], run_dir: Path, log_path: Path) -> tuple[int, str]:
+    """``start_detached``'s answer when the launcher's run.json already says the run stopped (it failed at once, or
+    ``down`` stopped it) by the time ``up --detach`` looked: how it ended and the run's exit code (``status --watch``'s
+    ``run_end_exit_code``), not "started", exit 0, of a run that is over. Its launcher, exiting, is waited for a while."""
+    from cso_runtime.status import run_end_exit_code  # noqa: PLC0415 - only for this answer
+
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        proc.wait(timeout=DETACHED_EXIT_WAIT_S)
+    reason = f" ({info['reason']})" if info.get("reason") else ""
+    return run_end_exit_code(info), (
+        f"run {run_dir.name} stopped as it started: {info.get('outcome') or 'failed'}{reason} (launcher pid {proc.pid}); see {log_path}:\n{log_tail(log_path)}"
+    )
 
 
 def log_tail(path: Path, tail_chars: int = 2000) -> str:
@@ -2008,6 +2050,9 @@ def _stop_unstarted_launcher(proc: subprocess.Popen, run: Launcher, exit_code: i
     except (OSError, ValueError):
         pass
     run.launcher_pid = proc.pid
+    # run.json only: the current-run file no longer names this run (down cleared it above), and another `up` of the folder
+    # may have started since its launcher died: written "stopped" and removed, it left that run to no `status` or `down`.
+    run.writes_current_run = False
     run.stop_before_start(exit_code)
 
 

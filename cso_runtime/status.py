@@ -324,7 +324,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
     ``127.0.0.1:7447``: a usage error, not "nothing running"), ``robot`` is not one robot's id, or ``connect`` was given
     without ``robot`` and several robots answer there (which one is the user's to say; the one that answers is taken)."""
-    from cso_runtime.current_run import current_launcher_alive, read_current_run, runs_command, starting_run, starting_up_line  # noqa: PLC0415
+    from cso_runtime.current_run import read_current_run, runs_command  # noqa: PLC0415
 
     given_connect = bool(connect)
     robot_named = robot is not None
@@ -341,19 +341,13 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     except KeyExprError as exc:
         print(f"error: --robot: {exc}", file=sys.stderr)
         return 2
-    # Its run file is written before its router opens.
-    if not connect and run_info is not None and (starting := starting_run(run_info)):
+    if not given_connect and (not_yet := current_run_not_joinable(run_info, runs_dir)) is not None:
+        if not_yet.state != "starting":
+            return say_nothing_running(not_yet.said, as_json)
         if as_json:
-            print_json({"state": "starting", "run_id": run_info["run_id"], "reason": starting})
+            print_json({"state": "starting", "run_id": not_yet.run_id, "reason": not_yet.said})
         else:
-            print(starting)
-        return 1
-    # `up` checks its profile, no run file of its own yet: before a run file that a launcher gone (killed) left behind
-    if not given_connect and (run_info is None or not current_launcher_alive(run_info)) and (up_starting := starting_up_line(runs_dir)):
-        if as_json:
-            print_json({"state": "starting", "run_id": "", "reason": up_starting})
-        else:
-            print(up_starting)
+            print(not_yet.said)
         return 1
     # Before "no current run": a launcher killed while starting left a run file with no endpoints.
     if not given_connect and (gone := dead_launcher_of_run(run_info, runs_dir)):
@@ -372,6 +366,38 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
             print(f"error: {exc}", file=sys.stderr)
             return 2
     return RunTarget(connect, robot, zenoh_config_file)
+
+
+class NotJoinable(NamedTuple):
+    """Why the current run cannot be joined though its launcher (or its ``up``) lives (``current_run_not_joinable``)."""
+
+    state: str
+    """``starting`` (not yet), or ``stopped`` (no more: its launcher has ended the run and is exiting)."""
+    run_id: str
+    """The run's id; "" for an ``up`` that has written no run file yet."""
+    said: str
+    """What to tell the user."""
+
+
+def current_run_not_joinable(run_info: dict[str, Any] | None, runs_dir: Path) -> NotJoinable | None:
+    """Why the current run of ``runs_dir`` (its run file, ``run_info``, as ``read_current_run`` read it; None: none)
+    cannot be joined, where a process of it lives: its launcher has not opened its router yet (it writes its run file
+    first: ``starting_run``), an ``up`` still checks its profile and has written no run file (``starting_up_line``; one
+    that a launcher gone left is no run), or its launcher has ended the run (``stopped``) and is exiting: ``status`` said
+    "no current run in runs; give --runs-dir ..." of it, or waited out a client's timeout on its closing router. None:
+    join it, or there is nothing of it to join (no run; its launcher gone: ``dead_launcher_of_run``). What ``status``,
+    ``save-map``, ``pause``, ``resume``, ``record`` and ``replay`` say instead of "no current run"."""
+    from cso_runtime.current_run import current_launcher_alive, runs_command, starting_run, starting_up_line  # noqa: PLC0415
+
+    if run_info is not None and (starting := starting_run(run_info)):
+        return NotJoinable("starting", run_info["run_id"], starting)
+    if (run_info is None or not current_launcher_alive(run_info)) and (up_starting := starting_up_line(runs_dir)):
+        return NotJoinable("starting", "", up_starting)
+    if run_info is not None and run_info.get("state") == "stopped" and current_launcher_alive(run_info):
+        outcome = run_info.get("outcome") or "stopped"
+        ended = f"run {run_info['run_id']} has ended ({outcome}) and its launcher is exiting; {runs_command('runs', runs_dir)} lists it"
+        return NotJoinable("stopped", run_info["run_id"], ended)
+    return None
 
 
 class AmbiguousRobotError(ValueError):

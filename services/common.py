@@ -1076,11 +1076,13 @@ def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | No
     p = service_parser(name, cls, prog)
     args = p.parse_args(argv)
     if args.attach:
-        from cso_runtime.current_run import read_current_run, starting_run  # noqa: PLC0415  (only to attach)
+        from cso_runtime.current_run import read_current_run  # noqa: PLC0415  (only to attach)
+        from cso_runtime.status import current_run_not_joinable  # noqa: PLC0415
 
-        info = read_current_run(args.runs_dir) or {}
-        if starting := starting_run(info):
-            p.error(f"--attach: {starting}")
+        found = read_current_run(args.runs_dir)
+        if (not_yet := current_run_not_joinable(found, args.runs_dir)) is not None:  # starting (an `up ... &` just typed), or ending
+            p.error(f"--attach: {not_yet.said}")
+        info = found or {}
         try:
             run_dir, endpoints, robot = Path(info["run_dir"]), list(info["endpoints"]), str(info["robot"])
         except (KeyError, TypeError):

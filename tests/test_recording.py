@@ -940,6 +940,39 @@ def test_replay_and_record_say_a_bad_flag_with_no_run_too(tmp_path: Path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_record_and_replay_of_a_run_that_is_starting_or_ending_say_so_not_no_current_run(tmp_path: Path):
+    """``up ... &`` then ``record`` (or ``replay``) as the run's router opened: its run file said ``starting``, with no
+    endpoints yet, and they said "no current run; give --connect ENDPOINT" (exit 2, a usage error) of a run that was
+    there. They say it is starting (exit 1, as ``status`` does); of a run whose launcher has ended it and is exiting
+    (its run file ``stopped``), that it has ended; with no run at all, "no current run" as before."""
+    import json
+    import os
+
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    recording = tmp_path / "in.mcap"
+    _written_scans(recording, 1)
+    runs = tmp_path / "runs"
+    run_dir = runs / "run1"
+    run_dir.mkdir(parents=True)
+    starting = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [], "launcher_pid": os.getpid(), "state": "starting", "services": {}}
+    ending = {**starting, "endpoints": ["tcp/127.0.0.1:1"], "state": "stopped", "outcome": "interrupted", "exit_code": 130}
+    for info, said in (
+        (starting, "error: run run1 (robot r0) is starting: its router is not open yet; ask again in a moment"),
+        (ending, f"error: run run1 has ended (interrupted) and its launcher is exiting; `cso-runtime runs --runs-dir {runs}` lists it"),
+    ):
+        (runs / "current.json").write_text(json.dumps(info))
+        for command in (["record", "--out", str(tmp_path / "out.mcap")], ["replay", str(recording)]):
+            r = CliRunner().invoke(app, [*command, "--runs-dir", str(runs)])
+            assert r.exit_code == 1 and r.output.strip() == said, (command, r.exit_code, r.output)
+    assert not (tmp_path / "out.mcap").exists()
+    (runs / "current.json").unlink()
+    r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "out.mcap"), "--runs-dir", str(runs)])
+    assert r.exit_code == 2 and "no current run; give --connect ENDPOINT" in r.output, r.output
+
+
 def test_replay_refuses_a_speed_too_slow_to_wait_for():
     """``replay --speed 1e-320`` ended mid-replay in ``OverflowError: timestamp out of range for platform time_t`` (a
     wait between two messages past the platform's longest); ``1e-12`` waited centuries. The slowest speed is

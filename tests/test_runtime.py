@@ -1476,6 +1476,86 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
             kill_leftovers(runs, [p.pid for p in started])
 
 
+def test_up_detach_says_how_a_run_that_stopped_before_it_looked_ended_not_that_it_started(tmp_path):
+    """``up --detach`` said "started" (exit 0) once run.json named services and endpoints, before it looked at its
+    launcher's exit: a run that stopped between two of its looks (its services given up on at once, a ``down``) left a
+    run.json that names them too, state ``stopped``, and ``up --detach`` said "started" of a run that was over. It says
+    how the run ended, with its exit code."""
+    from cso_runtime.launcher import _wait_for_detached
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    run_dir = tmp_path / "runs" / "run1"
+    (run_dir / "logs").mkdir(parents=True)
+    log_path = run_dir / "logs" / "launcher.log"
+    log_path.write_text("the sim service is gone for good: stopping\n")
+    stopped = {
+        "run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "state": "stopped",
+        "services": {"sim": {"pid": None, "start_ticks": None, "restarts": 3, "gave_up": True}},
+        "outcome": "failed", "exit_code": 1, "reason": "gave up on sim: exit code 1",
+    }  # fmt: skip
+    (run_dir / "run.json").write_text(json.dumps(stopped))
+    proc = subprocess.Popen([sys.executable, "-c", "raise SystemExit(1)"])  # the launcher, ending the run it stopped
+    try:
+        code, message = _wait_for_detached(proc, profile, data, run_dir, None, False, log_path, 5.0, threading.Event())
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert code == 1 and message.startswith("run run1 stopped as it started: failed (gave up on sim: exit code 1)"), (code, message)
+    assert "the sim service is gone for good" in message and "started (launcher pid" not in message, message
+    assert json.loads((run_dir / "run.json").read_text()) == stopped  # its launcher's own account, kept
+
+
+def test_up_detach_of_a_launcher_killed_after_it_spawned_its_services_does_not_say_started(tmp_path):
+    """``up --detach`` read run.json before it looked at its launcher: a launcher killed (SIGKILL: out of memory, a
+    user's ``kill -9``) after it wrote that its services and router are up left run.json saying so, and ``up --detach``
+    said "started", exit 0, of a run with no launcher. It looks at its launcher first: killed, it cleans the run up
+    (its services, its current-run file) and says so."""
+    from cso_runtime.config import EXIT_INTERRUPTED
+    from cso_runtime.launcher import _wait_for_detached
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    runs = tmp_path / "runs"
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])  # the launcher, killed
+    proc.kill()
+    proc.wait(timeout=30)
+    run_dir, starting = starting_run_files(runs, proc.pid)
+    running = {**starting, "run_id": run_dir.name, "state": "running", "endpoints": [loopback_endpoint(7447)],
+               "services": {"sim": {"pid": None, "start_ticks": None, "restarts": 0, "gave_up": False}}}  # fmt: skip
+    for path in (runs / "current.json", run_dir / "run.json"):
+        path.write_text(json.dumps(running))
+    (run_dir / "logs").mkdir()
+    code, message = _wait_for_detached(proc, profile, data, run_dir, None, False, run_dir / "logs" / "launcher.log", 5.0, threading.Event())
+    assert code == EXIT_INTERRUPTED and message.startswith(f"the launcher (pid {proc.pid}) was stopped as it started"), (code, message)
+    assert not (runs / "current.json").exists()  # nothing `status` or `down` takes for a running run
+    assert json.loads((run_dir / "run.json").read_text())["state"] == "stopped"
+
+
+def test_up_detach_ending_a_launcher_it_gave_up_on_leaves_another_runs_current_file_alone(tmp_path):
+    """``up --detach`` that stops a launcher it gave up on (killed as it started, Ctrl-C, too slow) writes that run's end
+    for it. It wrote it to the current-run file too, and then removed that file: a run another ``up`` had started in the
+    folder once that launcher was gone (its lock free) lost its current-run file, and ``status`` and ``down`` no longer
+    found it. Only the stopped run's run.json is written; the current-run file is the running launcher's."""
+    from cso_runtime.config import EXIT_INTERRUPTED
+    from cso_runtime.launcher import Launcher, _stop_unstarted_launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    runs = tmp_path / "runs"
+    _, other = starting_run_files(runs, os.getpid())  # the run started since, its launcher alive
+    other = {**other, "state": "running", "endpoints": [loopback_endpoint(7447)]}
+    (runs / "current.json").write_text(json.dumps(other))
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    given_up = Launcher(profile, data, runs / "20261206-115959-lockstep-r0")
+    given_up.run_dir.mkdir()
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])  # its launcher, killed before it wrote its run file
+    proc.wait(timeout=30)
+    _stop_unstarted_launcher(proc, given_up, EXIT_INTERRUPTED)
+    assert json.loads((runs / "current.json").read_text()) == other
+    ended = json.loads((given_up.run_dir / "run.json").read_text())
+    assert (ended["state"], ended["outcome"], ended["launcher_pid"]) == ("stopped", "interrupted", proc.pid), ended
+
+
 def test_down_while_a_detached_launcher_starts_stops_it(tmp_path, monkeypatch):
     """``down`` in the seconds between ``up --detach`` spawning its launcher and the launcher writing ``current.json``
     (its imports: 3 s on a loaded 2-core host; found by a fault-injection soak) answered "nothing running", exit 1, and
@@ -2400,11 +2480,67 @@ def test_the_current_run_file_is_written_before_run_json_which_up_detach_waits_f
         write(path, text)
 
     monkeypatch.setattr(launcher_module, "write_text_atomic", checked)
+    launcher.write_run_file("starting")  # run.json first, this once (test_a_run_has_its_run_json_before_...)
+    launcher.endpoints = ["tcp/127.0.0.1:7447"]
+    launcher.write_run_file("running")
+    launcher.write_run_file("stopped")
+    assert seen == [("run.json", False), ("run.json", True), ("run.json", True)]
+    assert json.loads((launcher.run_dir / "run.json").read_text())["endpoints"] == ["tcp/127.0.0.1:7447"]
+
+
+def test_a_run_has_its_run_json_before_the_current_run_file_names_it_for_logs_follow(tmp_path, monkeypatch):
+    """``logs -f`` goes from the current-run file to the run's run.json (``logs_grow``: is it still going on?). With the
+    current-run file written first on the launcher's first write too ("starting"), ``logs -f`` at that moment found the
+    run's folder and no run.json in it, took the run for ended, printed the launcher's first lines and "run ... has
+    ended", and left. Whenever the current-run file names the run, the run has a run.json."""
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.runs import logs_grow, resolve_run
+
+    runs = tmp_path / "runs"
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, runs / "run")
+    (launcher.run_dir / "logs").mkdir(parents=True)
+    (launcher.run_dir / "logs" / "launcher.log").write_text("")
+    write = launcher_module.write_text_atomic
+    followed: list[bool] = []
+
+    def checked(path: Path, text: str) -> None:
+        write(path, text)
+        if path.name == "current.json":  # `logs -f` just now
+            followed.append(resolve_run(runs) == launcher.run_dir and logs_grow(launcher.run_dir))
+
+    monkeypatch.setattr(launcher_module, "write_text_atomic", checked)
     launcher.write_run_file("starting")
     launcher.endpoints = ["tcp/127.0.0.1:7447"]
     launcher.write_run_file("running")
-    assert seen == [("run.json", True), ("run.json", True)]
-    assert json.loads((launcher.run_dir / "run.json").read_text())["endpoints"] == ["tcp/127.0.0.1:7447"]
+    assert followed == [True, True], followed
+
+
+def test_a_run_folder_made_again_while_the_run_starts_says_starting_not_running(tmp_path, capsys):
+    """The run folder deleted as ``up`` started (``tend_run_folder`` makes it again before the router opens) wrote the run
+    file as "running", with no endpoints yet: ``status`` said "nothing running (no current run in runs ...)" of a run
+    that was starting, and ``status --watch`` ended there. The run file made again says the state it had."""
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.status import status_main
+
+    runs = tmp_path / "runs"
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, runs / "run")
+    launcher.run_dir.mkdir(parents=True)
+    launcher.write_run_file("starting")
+    shutil.rmtree(launcher.run_dir)
+    try:
+        launcher.tend_run_folder(lost=True)
+    finally:
+        launcher.run_folder.close()
+    for path in (runs / "current.json", launcher.run_dir / "run.json"):
+        assert json.loads(path.read_text())["state"] == "starting", path
+    capsys.readouterr()
+    assert status_main([], None, False, False, runs, 1.0) == 1
+    assert capsys.readouterr().out == "run run (robot r0) is starting: its router is not open yet; ask again in a moment\n"
 
 
 def _fake_result(method: str = "greedy-dist", steps: int = 10):
@@ -3809,6 +3945,59 @@ def test_status_says_a_run_is_starting_before_its_router_is_open(tmp_path, monke
     assert not (runs / "current.json").exists() and json.loads((runs / "run1" / "run.json").read_text())["state"] == "stopped"
 
 
+def test_status_save_map_and_pause_of_a_run_whose_launcher_has_ended_it_say_so(tmp_path, monkeypatch, capsys):
+    """As it ends a run the launcher writes its run file ``stopped`` and then removes it: ``status`` in between (a
+    script polling it, ``status --watch`` started then) said "nothing running (no current run in runs; give --runs-dir
+    of the folder `up` used ...)" of a run that failed as it started, and of one that ran, waited out a client's
+    timeout on its closing router to say "no answer". They say the run has ended, at once."""
+    from cso_runtime import status
+    from cso_runtime.status import explore_resume_main, save_map_main, status_main
+    from services.common import parse_args
+
+    asked: list[list[str]] = []
+    monkeypatch.setattr(status, "_client_session", lambda connect, zenoh_config_file=None: asked.append(connect))  # None: nothing there
+    runs = tmp_path / "runs"
+    for endpoints in ([], [loopback_endpoint(free_tcp_port())]):
+        _, starting = starting_run_files(runs, os.getpid())
+        ended = {**starting, "endpoints": endpoints, "state": "stopped", "outcome": "failed", "exit_code": 3}
+        (runs / "current.json").write_text(json.dumps(ended))
+        line = f"run run1 has ended (failed) and its launcher is exiting; `cso-runtime runs --runs-dir {runs}` lists it"
+        capsys.readouterr()
+        assert status_main([], None, False, False, runs, 1.0) == 1
+        assert capsys.readouterr().out == f"nothing running ({line})\n"
+        assert status_main([], None, True, True, runs, 0.1) == 1
+        assert json.loads(capsys.readouterr().out) == {"state": "not running", "reason": f"nothing running ({line})"}
+        assert save_map_main([], None, tmp_path / "map", "pgm", runs) == 1 and line in capsys.readouterr().out
+        assert explore_resume_main([], None, runs, resume=False) == 1 and line in capsys.readouterr().out
+        assert asked == [], "asked a router that is closing"
+        with pytest.raises(SystemExit) as exited:  # `cso-runtime service NAME --attach`: nothing to join any more
+            parse_args("foxglove_bridge", ["--attach", "--runs-dir", str(runs)])
+        assert exited.value.code == 2 and f"--attach: {line}" in capsys.readouterr().err
+        shutil.rmtree(runs)
+
+
+def test_a_service_attached_as_up_checks_its_profile_says_that_up_is_starting_not_no_current_run(tmp_path, capsys):
+    """``cso-runtime up & python -m services.NAME --attach``: for the ``up``'s first second or more it has written no run
+    file, and ``--attach`` said "no current run in runs (start one with `cso-runtime up` ...)" of the run being started.
+    It names the ``up`` that is starting, as ``status`` does (still exit 2: nothing to join yet)."""
+    from cso_runtime.current_run import starting_up_path
+    from cso_runtime.supervision import process_start_ticks
+    from services.common import parse_args
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # an `up` checking its profile
+    try:
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+        with pytest.raises(SystemExit) as exited:
+            parse_args("foxglove_bridge", ["--attach", "--runs-dir", str(runs)])
+    finally:
+        up.kill()
+        up.wait(timeout=30)
+    err = capsys.readouterr().err
+    assert exited.value.code == 2 and f"--attach: `up` (pid {up.pid}) is starting in {runs}" in err, err
+
+
 def test_status_names_an_up_still_checking_its_profile_and_watch_waits_for_it(tmp_path):
     """``up ... &`` then ``status --watch`` at once: for its first second or more (Python's imports, its profile
     checked, a scene or weights loaded) ``up`` has written no run file, and ``status`` said "nothing running (no current
@@ -4737,6 +4926,26 @@ def test_status_watch_of_a_starting_run_ends_when_its_launcher_dies_or_its_start
             assert (json.loads(said[-1])["outcome"], json.loads(said[-1])["exit_code"]) == ("failed", 3), said
         else:
             assert said[-1] == f"run run1 ended: failed, exit code 3; its folder: {run_dir}/ (the logs in {run_dir / 'logs'}/)", said
+
+
+def test_down_after_a_dead_launcher_writes_how_its_run_ended_before_it_clears_the_current_run_file(tmp_path, monkeypatch):
+    """``down`` of a run whose launcher died removed the current-run file and only then wrote in run.json that the run
+    ended: ``status --watch`` waiting on that starting run, finding no current-run file in between, read run.json still
+    "starting" and ended with "nothing running (no current run ...)" instead of how the run ended. run.json says it
+    first, as the launcher's own end does (``Launcher.stop_before_start``)."""
+    from cso_runtime import current_run
+
+    runs = tmp_path / "runs"
+    launcher = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    launcher.kill()
+    launcher.wait(timeout=30)
+    run_dir, _ = starting_run_files(runs, launcher.pid)
+    record = current_run.record_launcher_died
+    pointer_there: list[bool] = []
+    monkeypatch.setattr(current_run, "record_launcher_died", lambda info: (pointer_there.append((runs / "current.json").exists()), record(info))[1])
+    stopped, said = current_run.down(runs, timeout_s=0.0)
+    assert stopped and "had already exited" in said and pointer_there == [True], (said, pointer_there)
+    assert not (runs / "current.json").exists() and json.loads((run_dir / "run.json").read_text())["state"] == "stopped"
 
 
 def test_status_watch_of_a_run_stopped_before_its_episode_ended_says_where_its_map_so_far_is(tmp_path, capsys):
