@@ -2022,6 +2022,8 @@ def _detached_start_stopped(proc: subprocess.Popen, info: dict[str, Any], run_di
     with contextlib.suppress(subprocess.TimeoutExpired):
         proc.wait(timeout=DETACHED_EXIT_WAIT_S)
     reason = f" ({info['reason']})" if info.get("reason") else ""
+    if info.get("outcome") == "done":  # a short episode on a busy host: over, and well, before this look
+        return 0, f"run {run_dir.name} started and has ended already: done{reason} (launcher pid {proc.pid}); results in {run_dir}/"
     return run_end_exit_code(info), (
         f"run {run_dir.name} stopped as it started: {info.get('outcome') or 'failed'}{reason} (launcher pid {proc.pid}); see {log_path}:\n{log_tail(log_path)}"
     )

@@ -1504,6 +1504,16 @@ def test_up_detach_says_how_a_run_that_stopped_before_it_looked_ended_not_that_i
     assert code == 1 and message.startswith("run run1 stopped as it started: failed (gave up on sim: exit code 1)"), (code, message)
     assert "the sim service is gone for good" in message and "started (launcher pid" not in message, message
     assert json.loads((run_dir / "run.json").read_text()) == stopped  # its launcher's own account, kept
+    # an episode short enough to be over, and done, before the first look (a busy host): exit 0, said ended, not failed
+    done = {**stopped, "outcome": "done", "exit_code": 0, "reason": ""}
+    (run_dir / "run.json").write_text(json.dumps(done))
+    proc = subprocess.Popen([sys.executable, "-c", "raise SystemExit(0)"])
+    try:
+        code, message = _wait_for_detached(proc, profile, data, run_dir, None, False, log_path, 5.0, threading.Event())
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert code == 0 and message.startswith("run run1 started and has ended already: done (launcher pid"), (code, message)
 
 
 def test_up_detach_of_a_launcher_killed_after_it_spawned_its_services_does_not_say_started(tmp_path):
