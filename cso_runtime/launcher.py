@@ -1947,6 +1947,7 @@ def start_detached(
     write_text_atomic(data_path, yaml_dump(data, sort_keys=False))
     log_path = run_dir / "logs" / "launcher.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
+    profile_text = yaml_dump(data, sort_keys=False).encode()
     with log_path.open("ab") as fh:
         proc = subprocess.Popen(
             [*python_module_argv("cso_runtime.launcher"), "--profile-data", STDIN_PATH, "--run-dir", str(run_dir)]
@@ -1958,15 +1959,17 @@ def start_detached(
             stdin=subprocess.PIPE,
             start_new_session=True,
         )
-    # On its stdin, not from profile.requested.yaml (kept for the record): a run folder deleted in the second the
-    # launcher takes to start would leave it nothing to run (the run goes on, as for a folder deleted later).
-    assert proc.stdin is not None
-    with contextlib.suppress(OSError), proc.stdin:  # a launcher dead at once: its exit code says why, below
-        proc.stdin.write(yaml_dump(data, sort_keys=False).encode())
     starting = run_dir / STARTING_LAUNCHER  # `down` finds the launcher by it until its run file does (current_run.down)
     try:
+        # Named first, the moment it runs: a `down` while its profile was written to it found neither this nor a run file
+        # ("nothing running"), and the run came up all the same.
         with contextlib.suppress(OSError):  # the run folder deleted as the launcher starts (which makes it again): not found then
             write_text_atomic(starting, json.dumps({"launcher_pid": proc.pid, "launcher_start_ticks": process_start_ticks(proc.pid)}))
+        # On its stdin, not from profile.requested.yaml (kept for the record): a run folder deleted in the second the
+        # launcher takes to start would leave it nothing to run (the run goes on, as for a folder deleted later).
+        assert proc.stdin is not None
+        with contextlib.suppress(OSError), proc.stdin:  # a launcher dead at once: its exit code says why, below
+            proc.stdin.write(profile_text)
         return _wait_for_detached(proc, profile, data, run_dir, record_path, animate, log_path, ready_timeout_s, stop)
     finally:
         starting.unlink(missing_ok=True)

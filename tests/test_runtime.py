@@ -1584,9 +1584,14 @@ def test_down_while_a_detached_launcher_starts_stops_it(tmp_path, monkeypatch):
         whatever the host's speed."""
         if "cso_runtime.launcher" in args:
             started.append(real_popen([sys.executable, "-c", "import time; time.sleep(60)"], **kwargs))
+            pipe = started[-1].stdin
+            real_write = pipe.write
+            # named before it is given its profile: what a `down` in between goes by
+            pipe.write = lambda data: named_at_profile.append(bool(list(runs.glob(f"*/{STARTING_LAUNCHER}")))) or real_write(data)
             return started[-1]
         return real_popen(args, **kwargs)
 
+    named_at_profile: list[bool] = []
     monkeypatch.setattr(launcher_module.subprocess, "Popen", slow_launcher)
     runs = tmp_path / "runs"
     profile, data = load_profile(str(write_profile(tmp_path)), {})
@@ -1594,9 +1599,12 @@ def test_down_while_a_detached_launcher_starts_stops_it(tmp_path, monkeypatch):
     starter = threading.Thread(target=lambda: result.append(start_detached(profile, data, runs, ready_timeout_s=120.0)))
     starter.start()
     try:
-        wait_for(lambda: started, 30, "up --detach to spawn its launcher")
+        # what `down` goes by: up --detach names its launcher (STARTING_LAUNCHER) as it spawns it, before it gives it its
+        # profile (after it, a `down` between the two said "nothing running" on a busy host)
+        wait_for(lambda: started and list(runs.glob(f"*/{STARTING_LAUNCHER}")), 30, "up --detach to spawn and name its launcher")
         ok, message = down(runs)
         assert ok and "as it started" in message and f"launcher pid {started[0].pid}" in message, message
+        assert named_at_profile == [True]
         starter.join(30)
         assert not starter.is_alive() and started[0].poll() is not None
         ((code, said),) = result
