@@ -271,6 +271,11 @@ class PlannerService(Service):
             return
         if have > state.contacts:
             if self.ctx.lockstep and self.contacts_restored_step is not None and self.contacts_restored_step > state.step:
+                log.info(
+                    "the contacts restored are of step %d, after the state's (step %d): keeping the %d it counted, not the %d "
+                    "after them (that step is commanded again, adding them again)",
+                    self.contacts_restored_step, state.step, state.contacts, have - state.contacts,
+                )  # fmt: skip
                 self.planner.contacts_xy_m = self.planner.contacts_xy_m[: state.contacts]
                 self.contacts_published = state.contacts  # the step redone sends them again, as it did
             return

@@ -940,7 +940,7 @@ def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_
         assert not fresh.restore_state(state, plan) and (fresh.cmd_step, fresh.planner.path, fresh.episodes.current) == (-1, None, None)
 
 
-def test_a_planner_killed_anywhere_in_a_step_that_adds_a_contact_restarts_with_the_contacts_of_its_state():
+def test_a_planner_killed_anywhere_in_a_step_that_adds_a_contact_restarts_with_the_contacts_of_its_state(caplog):
     """The contacts (``planner_contacts``) ride on no command: they went out after the step's ``cmd_vel``, which carries
     the state. A planner killed between the two left the cache a state of step k and the contacts of before k, and the
     one restarted from them went on without the contact step k had added: it added it again a step later (another
@@ -948,7 +948,8 @@ def test_a_planner_killed_anywhere_in_a_step_that_adds_a_contact_restarts_with_t
     planner is killed, the restarted one now commands, reports and sends contacts from the step after its state as the
     uninterrupted planner did: the contacts go out before the command whose state counts them (``contacts``), and
     contacts of a later step than the state are dropped at the restore (its step is commanded again, adding them
-    again). Uncounted contacts of no later step (another sender's), and any in real time (no step is redone), are kept."""
+    again), and the planner's log says so (it said only "restored 1 contacts" and went on with none). Uncounted contacts
+    of no later step (another sender's), and any in real time (no step is redone), are kept."""
     episode, end, contact_step = 5, 7, 2
     period_s = ExplorationConfig().robot.control_period_s
     ex = _explorer_at(0)
@@ -1000,6 +1001,12 @@ def test_a_planner_killed_anywhere_in_a_step_that_adds_a_contact_restarts_with_t
         kept_all, _ = _service(PlannerService, lockstep=lockstep)
         kept_all.restore_contacts(dataclasses.replace(contacts, step=contacts_step))
         assert kept_all.restore_state(state, plan) and len(kept_all.planner.contacts_xy_m) == 1, (lockstep, contacts_step)
+    dropped, _ = _service(PlannerService, lockstep=True)
+    with caplog.at_level("INFO", logger="cso.planner"):
+        dropped.restore_contacts(contacts)
+        assert dropped.restore_state(state, plan) and len(dropped.planner.contacts_xy_m) == 0
+    said = f"the contacts restored are of step {contact_step}, after the state's (step {contact_step - 1}): keeping the 0 it counted, not the 1 after them"
+    assert said in caplog.text, caplog.text
 
 
 @pytest.mark.parametrize("decision", ["no_goal", "no_path"])
