@@ -220,6 +220,9 @@ class Service:
         """Exceptions raised in the service's Zenoh callbacks besides its inputs' (its status, cache and own queryables,
         a liveliness subscriber: ``guarded``) or in its ``extra_status``: logged, and counted as the status's
         ``callback_errors``."""
+        self.cache_unanswered = 0
+        """Restores at start (``restore_from_cache``) that got no answer from the referee's cache in time, the service
+        started afresh: counted as the status's ``cache_unanswered`` (told apart from a cache with nothing kept)."""
         self.step_guard = StepGuard()
         self.last_step = 0
         self._state_and_reason = ("running", "")
@@ -448,21 +451,46 @@ class Service:
         with self._lock:
             rejected = dict(self.rejected)
             errors = self.callback_errors
+            unanswered = self.cache_unanswered
         # Counts only (what the schema carries): anything else would make the whole status undecodable.
         counters = {str(k): v for k, v in own.items() if isinstance(v, int) and not isinstance(v, bool) and v >= 0}
         if errors:
             counters["callback_errors"] = errors
+        if unanswered:
+            counters["cache_unanswered"] = unanswered
         state, reason = self._state_and_reason  # read once: the pair set together
         # Clipped to what the schema takes: a longer reason (a policy server's, naming each of its stale robots) made the
         # whole status undecodable, and `status` showed the service as not answering.
         return ServiceStatusMsg(self.name, self.ctx.robot, state, self.last_step, clipped(reason), rejected, self.processed, counters)
 
     def query_latest(self, key: str, expected: type[Message], timeout_s: float = 1.0, retry_period_s: float = 0.05) -> Message | None:
-        """The newest valid reply to ``key`` (by ``step``), for late joiners and restarts.
+        """The newest valid reply to ``key`` (by ``step``), for late joiners and restarts (``query_answered``)."""
+        return self.query_answered(key, expected, timeout_s, retry_period_s)[0]
 
-        While no queryable has answered at all (not even "nothing yet"), it asks again every
-        ``retry_period_s`` until ``timeout_s``: a peer that has just joined reaches the other peers'
-        queryables only once it has links to them, a moment after its session opens."""
+    def restore_from_cache(self, name: str, expected: type[M], timeout_s: float) -> M | None:
+        """What the referee keeps of ``name`` (its ``cache`` key) for this service restarted, waiting at most ``timeout_s``
+        for the answer. Each outcome but the restore (the caller says what it restored) is said in the log: the cache had
+        nothing (a first start, or nothing kept yet in this episode), or no answer in time (a loaded host, links not yet up:
+        the service starts afresh all the same, counted as ``cache_unanswered``)."""
+        key = self.ctx.keys.cache(name)
+        msg, answered = self.query_answered(key, expected, timeout_s)
+        if not answered:
+            with self._lock:
+                self.cache_unanswered += 1
+            log.warning("%s: no answer from the cache on %s within %g s: starting afresh (nothing of it restored)", self.name, key, timeout_s)
+            return None
+        if not isinstance(msg, expected):
+            log.info("%s: the cache had no %s for this episode: starting afresh", self.name, name)
+            return None
+        return msg
+
+    def query_answered(self, key: str, expected: type[Message], timeout_s: float = 1.0, retry_period_s: float = 0.05) -> tuple[Message | None, bool]:
+        """The newest valid reply to ``key`` (by ``step``), and whether any queryable answered at all (an error reply,
+        "nothing yet", is an answer): (None, False) is no answer within ``timeout_s``, (None, True) an answer of nothing.
+
+        While no queryable has answered at all, it asks again every ``retry_period_s`` until ``timeout_s``: a peer that
+        has just joined reaches the other peers' queryables only once it has links to them, a moment after its session
+        opens."""
         assert self.session is not None
         deadline = time.monotonic() + timeout_s
         while True:
@@ -480,7 +508,7 @@ class Service:
                 if best is None or getattr(msg, "step", 0) >= getattr(best, "step", 0):
                     best = msg
             if answered or time.monotonic() + retry_period_s >= deadline:
-                return best
+                return best, answered
             time.sleep(retry_period_s)
 
     def pause_in_force(self) -> ExploreResumeMsg | None:

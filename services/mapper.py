@@ -93,8 +93,8 @@ class MapperService(Service):
     def start(self) -> None:
         assert self.session is not None
         self._queryable = self.session.declare_queryable(self.ctx.keys.map, self.guarded(self._on_query))
-        cached = self.query_latest(self.ctx.keys.cache("map"), MapMsg, self.params.restore_timeout_s)
-        if isinstance(cached, MapMsg):
+        cached = self.restore_from_cache("map", MapMsg, self.params.restore_timeout_s)  # nothing kept, no answer: said there
+        if cached is not None:
             self.restore(cached)
 
     def restore(self, cached: MapMsg) -> None:

@@ -134,20 +134,22 @@ class PlannerService(Service):
         restarted mid-episode gets its contacts, its plan and its state back from the referee (``cache/planner/...``)."""
         if (pause := self.pause_in_force()) is not None:
             self.on_pause(pause)
-        cached = self.query_latest(self.ctx.keys.cache("planner_contacts"), PlannerContactsMsg, self.params.restore_timeout_s)
-        if isinstance(cached, PlannerContactsMsg):
+        # Each outcome is said in the log (``restore_from_cache``: nothing kept, or no answer in time; restored: here).
+        cached = self.restore_from_cache("planner_contacts", PlannerContactsMsg, self.params.restore_timeout_s)
+        if cached is not None:
             self.restore_contacts(cached)
-        state = self.query_latest(self.ctx.keys.cache("planner_state"), PlannerStateMsg, self.params.restore_timeout_s)
-        if isinstance(state, PlannerStateMsg):
+        state = self.restore_from_cache("planner_state", PlannerStateMsg, self.params.restore_timeout_s)
+        if state is not None:
             # A state from before the planner's first plan (plan_step -1) names none: none to ask for (nor to wait on).
-            plan = None if state.plan_step < 0 else self.query_latest(self.ctx.keys.cache("planner_plan"), PlannerPlanMsg, self.params.restore_timeout_s)
-            self.restore_state(state, plan if isinstance(plan, PlannerPlanMsg) else None)
+            plan = None if state.plan_step < 0 else self.restore_from_cache("planner_plan", PlannerPlanMsg, self.params.restore_timeout_s)
+            self.restore_state(state, plan)
 
     def restore_contacts(self, cached: PlannerContactsMsg) -> None:
         """Keep the contacts of a planner that ran before this one in the same episode (it was killed, or crashed): the
         paths planned from here keep off them as its did. They belong to their episode: the first input of another
         episode starts afresh (``reset_episode``), as it does for the mapper's restored map."""
         if len(cached.contacts_xy_m) == 0:
+            log.info("the cache's contacts of step %d (episode %d) are none: none restored", cached.step, cached.episode)
             return
         self.episodes.current = cached.episode or None  # id 0 (no ids): the episode running, whichever it is
         self.planner.contacts_xy_m = np.array(cached.contacts_xy_m, dtype=float).reshape(-1, 2)

@@ -805,7 +805,7 @@ def test_the_planner_sends_its_contacts_only_when_one_is_added_and_a_restarted_o
 
     restarted, restarted_out = _service(PlannerService, lockstep=True)
     asked: list[str] = []
-    restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: asked.append(key) or (contacts if key.endswith("/contacts") else None)  # type: ignore[method-assign]
+    restarted.query_answered = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: (asked.append(key) or (contacts if key.endswith("/contacts") else None), True)  # type: ignore[method-assign]
     restarted.start()
     assert asked == ["cso/r0/cache/planner/contacts", "cso/r0/cache/planner/state"] and restarted.extra_status() == {"contacts": 1}  # no state kept: no plan asked
     for k in range(5, 8):
@@ -817,9 +817,39 @@ def test_the_planner_sends_its_contacts_only_when_one_is_added_and_a_restarted_o
     assert restarted.extra_status() == {"contacts": 0} and len(restarted.planner.contacts_xy_m) == 0
 
     fresh, _ = _service(PlannerService, lockstep=True)
-    fresh.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: None  # type: ignore[method-assign]
+    fresh.query_answered = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: (None, True)  # type: ignore[method-assign]
     fresh.start()  # nothing cached (a first start, or an episode with no contact yet)
     assert fresh.extra_status() == {"contacts": 0} and fresh.episodes.current is None
+
+
+def test_a_restarted_planner_says_whether_the_cache_restored_it_had_nothing_or_did_not_answer(caplog):
+    """A restarted planner waits at most ``restore_timeout_s`` for the referee's cache. When it got no answer in that
+    time (a loaded host, links not yet up) it started afresh and said nothing, as when the cache had nothing kept: the
+    log (and the status's ``cache_unanswered``) now tell the two apart."""
+    params = {"restore_timeout_s": 0.05}
+    asked: list[str] = []
+
+    def session(*replies: object) -> types.SimpleNamespace:  # a Zenoh session whose every query gets ``replies``
+        return types.SimpleNamespace(get=lambda key, target, timeout: asked.append(key) or iter(replies))
+
+    unanswered, _ = _service(PlannerService, lockstep=True, params=params)
+    unanswered.session = session()  # no queryable answers (not even "nothing yet")
+    with caplog.at_level("INFO"):
+        unanswered.start()
+    said = [r.getMessage() for r in caplog.records]
+    for key in ("cso/r0/cache/planner/contacts", "cso/r0/cache/planner/state"):
+        assert f"planner: no answer from the cache on {key} within 0.05 s: starting afresh (nothing of it restored)" in said, said
+    assert unanswered.status_msg().counters == {"contacts": 0, "cache_unanswered": 2} and unanswered.cmd_step == -1
+
+    caplog.clear()
+    asked.clear()
+    empty, _ = _service(PlannerService, lockstep=True, params=params)
+    empty.session = session(types.SimpleNamespace(ok=None))  # the cache's answer: "nothing yet" (an error reply)
+    with caplog.at_level("INFO"):
+        empty.start()
+    said = [r.getMessage() for r in caplog.records]
+    assert said == [f"planner: the cache had no {name} for this episode: starting afresh" for name in ("planner_contacts", "planner_state")], said
+    assert empty.status_msg().counters == {"contacts": 0} and asked == ["cso/r0/cache/planner/contacts", "cso/r0/cache/planner/state"]  # asked once each
 
 
 def _drive(planner: PlannerService, out: list, ex: Explorer, steps: range, episode: int, decision_obs=None, goal: GoalMsg | None = None) -> None:
@@ -851,7 +881,7 @@ def _restarted_from(out: list, upto_step: int) -> tuple[PlannerService, list]:
     """A planner started afresh with what the referee kept of ``out`` up to ``upto_step`` (its cache keys)."""
     kept = {t: m for t, m in _with_carried(out) if t in ("planner_contacts", "planner_plan", "planner_state") and m.step <= upto_step}
     restarted, restarted_out = _service(PlannerService, lockstep=True)
-    restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_"))  # type: ignore[method-assign]
+    restarted.query_answered = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: (kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_")), True)  # type: ignore[method-assign]
     restarted.start()
     return restarted, restarted_out
 
@@ -923,7 +953,7 @@ def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_
 
     real_time, out_rt = _service(PlannerService, lockstep=False)  # a robot's planner: it resumes the goal too
     kept = {t: m for t, m in _with_carried(out_b) if t in ("planner_plan", "planner_state")}
-    real_time.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_"))  # type: ignore[method-assign]
+    real_time.query_answered = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: (kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_")), True)  # type: ignore[method-assign]
     real_time.start()
     anchor = kept["planner_state"].follow.progress_anchor
     assert anchor is not None
@@ -982,7 +1012,7 @@ def test_a_planner_killed_anywhere_in_a_step_that_adds_a_contact_restarts_with_t
         for cut in range(of_step[0], len(sent) + 1):  # killed before the first of the two, and after each message from there
             kept = {t: m for t, m in sent[:cut] if t in ("planner_contacts", "planner_plan", "planner_state")}
             restarted, out_r = _service(PlannerService, lockstep=True)
-            restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_"))  # type: ignore[method-assign]  # noqa: B023
+            restarted.query_answered = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: (kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_")), True)  # type: ignore[method-assign]  # noqa: B023
             restarted.start()
             s = restarted.cmd_step
             restored_steps.add(s)
@@ -1031,7 +1061,7 @@ def test_a_planner_killed_before_its_first_plan_restarts_from_its_state_alone(de
     asked: list[str] = []
     restarted, out_r = _service(PlannerService, lockstep=True)
     kept = {"planner_state": state}
-    restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: (asked.append(key), kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_")))[1]  # type: ignore[method-assign]
+    restarted.query_answered = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: ((asked.append(key), kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_")))[1], True)  # type: ignore[method-assign]
     restarted.start()
     assert not [key for key in asked if key.endswith("planner/plan")]  # the state names no plan: none asked for
     assert (restarted.cmd_step, restarted.goal_step, restarted.no_frontier, restarted.planner.path) == (kill_after, 0, decision == "no_goal", None)
