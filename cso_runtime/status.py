@@ -324,13 +324,21 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
     ``127.0.0.1:7447``: a usage error, not "nothing running"), ``robot`` is not one robot's id, or ``connect`` was given
     without ``robot`` and several robots answer there (which one is the user's to say; the one that answers is taken)."""
-    from cso_runtime.current_run import read_current_run, runs_command  # noqa: PLC0415
+    from cso_runtime.current_run import read_current_run  # noqa: PLC0415
+
+    # The run file read once: the endpoints and the launcher's liveness are then of one run, even when a new
+    # run replaces the file in between (and a bad file is warned about once).
+    return target_of_run(connect, robot, runs_dir, None if connect else read_current_run(runs_dir), as_json)
+
+
+def target_of_run(connect: list[str], robot: str | None, runs_dir: Path, run_info: dict[str, Any] | None, as_json: bool = False) -> RunTarget | int:
+    """``reachable_target`` of the run file ``run_info`` (``read_current_run`` of ``runs_dir``; None: none, or
+    ``connect`` given), read by the caller: one that says more of the run (``save-map``, its folder) says it of the run
+    it asks."""
+    from cso_runtime.current_run import runs_command  # noqa: PLC0415
 
     given_connect = bool(connect)
     robot_named = robot is not None
-    # The run file read once: the endpoints and the launcher's liveness are then of one run, even when a new
-    # run replaces the file in between (and a bad file is warned about once).
-    run_info = None if given_connect else read_current_run(runs_dir)
     zenoh_config_file = None
     if not given_connect:
         connect, run_robot, zenoh_config_file = endpoints_of_run(run_info)
@@ -585,12 +593,10 @@ RUN_END_WAIT_S = 5.0
 launcher to write that the run stopped: it stops answering just before it writes ``run.json`` a last time."""
 
 
-def current_run_dir(runs_dir: Path, robot: str) -> Path | None:
-    """The folder of the current run of ``runs_dir`` (its run file's ``run_dir``) where that run is ``robot``'s; None
-    when there is none, or it is another robot's (``--robot r1`` through r0's router: r1's run and folder are another's)."""
-    from cso_runtime.current_run import read_current_run  # noqa: PLC0415
-
-    info = read_current_run(runs_dir, warn=False)  # read just before by reachable_target, which warned of a bad one
+def run_dir_of(info: dict[str, Any] | None, robot: str) -> Path | None:
+    """The folder of the current run (its run file ``info``'s ``run_dir``, as ``read_current_run`` read it) where that
+    run is ``robot``'s; None when there is none, or it is another robot's (``--robot r1`` through r0's router: r1's run
+    and folder are another's)."""
     return Path(info["run_dir"]) if info is not None and info.get("run_dir") and info.get("robot") == robot else None
 
 
@@ -965,16 +971,19 @@ def final_map_words(run_dir: Path | None, episode: EpisodeStatusMsg) -> str:
 def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_format: str, runs_dir: Path) -> int:
     """The ``save-map`` command: the running episode's map as map_server files, in the user's map frame (a
     map_server scene's ``origin``: the files overlay its map); exit 1 when there is none."""
+    from cso_runtime.current_run import read_current_run  # noqa: PLC0415
     from cso_runtime.map_files import map_yaml_path, save_map  # noqa: PLC0415
 
     yaml_out = map_yaml_path(out)
-    target = reachable_target(connect, robot, runs_dir)
+    # The run file read once: the run asked and the folder its "no map" names are of one run, even when it ends or
+    # another starts in between (read twice, the folder could be the next run's).
+    run_info = None if connect else read_current_run(runs_dir)
+    target = target_of_run(connect, robot, runs_dir, run_info)
     if isinstance(target, int):
         return target
-    given_connect = bool(connect)
     connect, robot, zenoh_config_file = target
-    assert robot is not None  # reachable_target always names the robot
-    run_dir = None if given_connect else current_run_dir(runs_dir, robot)  # the run asked is the current one: its folder is here
+    assert robot is not None  # target_of_run always names the robot
+    run_dir = run_dir_of(run_info, robot)  # the run asked is the current one: its folder is here (None: --connect)
     try:
         msg, why, map_origin = query_map(connect, robot, zenoh_config_file=zenoh_config_file, run_dir=run_dir)
     except TransportError as exc:

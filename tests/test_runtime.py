@@ -4099,7 +4099,7 @@ def test_save_map_below_a_file_names_the_file_in_the_way(tmp_path, monkeypatch, 
 
     grid = np.zeros((4, 5), dtype=np.int8)
     msg = MapMsg.from_grid(7, GridGeometry(0.05, (4, 5)), grid)
-    monkeypatch.setattr(status_module, "reachable_target", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
+    monkeypatch.setattr(status_module, "target_of_run", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
     monkeypatch.setattr(status_module, "query_map", lambda *_a, **_k: (msg, "", MAP_FRAME_ORIGIN))
     (tmp_path / "a_file").write_text("")
     for out in (tmp_path / "a_file" / "m", tmp_path / "a_file" / "deeper" / "m"):
@@ -4136,7 +4136,7 @@ def test_save_map_in_a_runs_first_seconds_says_it_has_no_map_yet_not_only_the_ke
             return self.answers.get(key, [])
 
     keys = RobotKeys("r0")
-    monkeypatch.setattr(status_module, "reachable_target", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
+    monkeypatch.setattr(status_module, "target_of_run", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
     starting = encode(EpisodeStatusMsg(state="starting", step=0))
     for answers, said in (
         ({}, ("no episode status answers either: its services may still be starting", f"nothing answered on {keys.cache('map')}", "`cso-runtime status`")),
@@ -4181,7 +4181,7 @@ def test_save_map_after_the_episode_says_where_its_final_map_is_or_that_none_was
             return [SimpleNamespace(ok=SimpleNamespace(payload=payload), err=None)] if key == keys.episode_status else []
 
     monkeypatch.setattr(status_module, "_client_session", lambda *_a, **_k: Session())
-    monkeypatch.setattr(status_module, "reachable_target", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
+    monkeypatch.setattr(status_module, "target_of_run", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
     runs, run_dir = tmp_path / "runs", tmp_path / "runs" / "run1"
     run_dir.mkdir(parents=True)
     (runs / "current.json").write_text(json.dumps({"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": ["tcp/127.0.0.1:1"]}))
@@ -4244,6 +4244,37 @@ def test_save_map_of_another_robot_than_the_current_runs_names_no_file_of_the_cu
     out = capsys.readouterr().out
     assert out.startswith("no map for robot r1: no map answers, and none will come: the episode is done, at step 212; "), out
     assert str(run_dir) not in out and "its final map, where the run wrote one, is in maps/ of the run's folder on the host that runs it" in out, out
+
+
+def test_save_map_reads_the_run_file_once_and_names_the_folder_of_the_run_it_asked(tmp_path, monkeypatch, capsys):
+    """``save-map`` read ``runs/current.json`` twice: once for the run's router (``reachable_target``), once for its
+    folder. A run that ended and another that started in between made its "no map" name the next run's folder, of a
+    run it had not asked. It reads the run file once: the router asked and the folder named are of one run."""
+    from types import SimpleNamespace
+
+    import cso_runtime.current_run as current_run_module
+    import cso_runtime.status as status_module
+
+    over = encode(EpisodeStatusMsg(state="done", step=212, scene="generated:small:1:0", method="cso"))
+    payload = SimpleNamespace(to_bytes=lambda: over, to_string=lambda: "")
+    asked: list[list[str]] = []
+
+    class Session(contextlib.AbstractContextManager):  # an ended episode answers; no map does
+        def __exit__(self, *_exc: object) -> None:
+            pass
+
+        def get(self, key: str, **_kw: object) -> list[SimpleNamespace]:
+            return [SimpleNamespace(ok=SimpleNamespace(payload=payload), err=None)] if key == RobotKeys("r0").episode_status else []
+
+    monkeypatch.setattr(status_module, "_client_session", lambda connect, *_a, **_k: asked.append(list(connect)) or Session())
+    runs = tmp_path / "runs"
+    first, second = ({"run_id": name, "run_dir": str(runs / name), "robot": "r0", "endpoints": [f"tcp/127.0.0.1:{port}"]} for name, port in (("run-a", 1), ("run-b", 2)))
+    readings = iter([first, second, second])  # run-a's file at the first reading, run-b's from then on
+    monkeypatch.setattr(current_run_module, "read_current_run", lambda *_a, **_k: next(readings))
+    assert save_map_main([], None, tmp_path / "m", "pgm", runs) == 1
+    out = capsys.readouterr().out
+    assert asked == [["tcp/127.0.0.1:1"]] and f"the run has not written its results in {runs / 'run-a'}/" in out, out
+    assert "run-b" not in out and next(readings) is second, out  # read once: run-b's file never read
 
 
 def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
