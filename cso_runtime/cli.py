@@ -329,6 +329,14 @@ def _warn_of_a_watchdog_within_a_step(prof: Profile) -> None:
             typer.echo(f"warning: {said}", err=True)
 
 
+
+def _warn_of_a_start_in_a_wall(prof: Profile) -> None:
+    """``up``: say, in the sim service's own words, when the MuJoCo LIMO's body overlaps a wall at the scene's start pose
+    (``Profile.start_overlap_said``), which the sim logs in runs/<run>/logs/sim.log alone; the run goes on as asked."""
+    said = prof.start_overlap_said()
+    if said is not None:
+        typer.echo(f"warning: {said}", err=True)
+
 @app.command("eval", rich_help_panel="Evaluation (Table 1)")
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", autocompletion=_complete_method_list, help=METHODS_HELP),
@@ -992,6 +1000,7 @@ def up_command(
             _warn_of_weights_trained_otherwise(prof)
             _warn_of_unfed_inputs(prof)
             _warn_of_a_watchdog_within_a_step(prof)
+            _warn_of_a_start_in_a_wall(prof)
             checks_folders = dry_run or not resolved  # --resolved alone: the profile to run later, wherever it will write
             if record_out is not None and checks_folders:
                 from cso_runtime.recording import names_a_folder  # noqa: PLC0415

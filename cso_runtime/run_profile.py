@@ -43,7 +43,7 @@ from cso_runtime.config import (
 )
 from cso_runtime.keys import check_robot_id
 from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, MAX_GRID_CELLS, check_max_grid_cells
-from cso_runtime.scenes import SceneError, resolve_scenes, spec_names_a_path
+from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, spec_names_a_path, start_overlap_said
 from cso_runtime.transport import JOIN_TIMEOUT_S, ZENOH_CONFIG_ENV, TransportConfig, TransportError
 
 
@@ -282,6 +282,24 @@ class Profile:
         """The goal selector the policy service runs: its own ``services.policy.method``, else the profile's ``method``."""
         return self.builtin_params("policy").get("method") or self.method
 
+    def scene_ref(self) -> SceneRef:
+        """The scene the sim service explores: the first of ``scene`` at ``m_per_px`` (``services.sim.build_simulator``);
+        a ConfigError for a spec of none, a SceneError for a bad one."""
+        refs = resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px)
+        if not refs:
+            raise ConfigError(f"scene {self.scene!r} resolves to no scene")
+        return refs[0]
+
+    def start_overlap_said(self) -> str | None:
+        """The MuJoCo LIMO's warning of a body overlapping a wall at the scene's start pose (``scenes.start_overlap_said``,
+        with ``exploration.robot``'s box), which its sim service logs as it starts, for ``up`` to say before anything
+        starts; None where there is none, or no MuJoCo LIMO (the 2D simulator's disc has no such check, a real robot no
+        scene). The plan ``validate`` loaded is loaded again: a few ms (a generated middle plan 2 ms, the builtin 7 ms)."""
+        if self.simulator() != "mujoco":
+            return None
+        robot = self.exploration_config().robot
+        return start_overlap_said(self.scene_ref().load(), robot.length_m, robot.width_m)
+
     def check_grid_bound(self) -> None:
         """ConfigError for a ``max_grid_cells`` out of range, or below the cells of the grid the profile itself sets (a
         real robot's arena, ``services.ros2_bridge``; the mapper's explicit grid), which every receiver would refuse.
@@ -394,11 +412,9 @@ class Profile:
                 if problem := device_problem(device):
                     raise ConfigError(f"services.policy.device: {problem}; run the policy on cpu")
         try:
-            refs = resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px)
-            if not refs:
-                raise ConfigError(f"scene {self.scene!r} resolves to no scene")
+            ref = self.scene_ref()
             if "sim" in self.services:
-                ny, nx = refs[0].load().geometry.shape  # a missing or unusable plan is a bad configuration: say so before anything starts
+                ny, nx = ref.load().geometry.shape  # a missing or unusable plan is a bad configuration: say so before anything starts
                 if ny * nx > self.max_grid_cells:  # every map of the run would be refused (``check_grid_bound``)
                     raise ConfigError(
                         f"scene {self.scene}: its grid is {nx} x {ny} = {ny * nx:_} cells, more than max_grid_cells ({self.max_grid_cells:_}): "

@@ -117,6 +117,27 @@ class FloorPlan:
         return np.flipud(grid)
 
 
+def body_overlaps_walls(plan: FloorPlan, pose: Pose2D, length_m: float, width_m: float) -> bool:
+    """Whether a box body ``length_m`` along ``pose``'s heading by ``width_m`` across, centred on ``pose``, shares some
+    area with a wall cell of ``plan``, outside the plan counting as wall (``GridGeometry.cells_overlapping_rectangle``:
+    exact, and a body that only touches a wall's face overlaps none). The MuJoCo LIMO's chassis box against the wall
+    boxes its world is built of (``robot_sim.scene``: the occupied cells, the plan ringed by walls)."""
+    g = plan.geometry
+    iy, ix = g.cells_overlapping_rectangle(pose, length_m, width_m)
+    on_plan = g.in_bounds(iy, ix)
+    return bool((~on_plan).any() or (~plan.free[iy[on_plan], ix[on_plan]]).any())
+
+
+def start_overlap_said(plan: FloorPlan, length_m: float, width_m: float) -> str | None:
+    """The MuJoCo LIMO's warning of a body (``robot.length_m`` by ``robot.width_m``) that overlaps a wall at the plan's
+    start pose (``body_overlaps_walls``), or None: what its simulator logs at each reset (the run goes on, the contact
+    pushing the body out) and ``up`` says on its terminal before anything starts, from the plan alone, no model built.
+    The pose as the plan's frame has it. The 2D simulator's disc has no such check."""
+    if not body_overlaps_walls(plan, plan.start, length_m, width_m):
+        return None
+    return f"{plan.name}: the LIMO's body overlaps a wall at the start pose {plan.start}"
+
+
 def describe_scene(plan: FloorPlan) -> dict[str, object]:
     """What ``cso-runtime scenes`` lists of a plan: its size, scale, traversable area and start pose (in the map
     frame, as a map_server YAML's ``start`` is written, with the ``map_origin`` that places the plan there), so a

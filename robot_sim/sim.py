@@ -28,7 +28,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, RobotConfig, SensorConfig
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, relative_pose, returns_as_float32, wrap_angle_rad
-from cso_runtime.scenes import FloorPlan
+from cso_runtime.scenes import FloorPlan, start_overlap_said
 from robot_sim.config import MujocoSimConfig, check_walls_hold, limo_sensor, whole_steps
 from robot_sim.limo import ACTUATORS, GROUP_WALLS, JOINTS, LIDAR_SITE, ROBOT_BODY, lateral_feedforward_mps
 from robot_sim.scene import world_mjcf
@@ -51,7 +51,8 @@ class MujocoSimulator:
 
     Ground truth (``true_pose``) is for evaluation only; the robot's decisions use ``odometry`` and
     ``sensor_pose`` (odometry composed with the LiDAR mount). The plan's start must be a finite pose on a free cell
-    (``FloorPlan.start_cell``, a SceneError otherwise); a body that still overlaps a wall there is warned of.
+    (``FloorPlan.start_cell``, a SceneError otherwise); a body that still overlaps a wall there is warned of
+    (``scenes.start_overlap_said``, which ``up`` says before anything starts).
     The rays are cast from ``sensor.mount_x_m`` (no sensor: ``limo_sensor()``, the LIMO's 0.103 m), the mount the
     mapper and the planner take from the same ``SensorConfig``.
     """
@@ -128,8 +129,10 @@ class MujocoSimulator:
             start = self.plan.start
             self.data.qpos[self._qadr] = (start.x_m, start.y_m, start.yaw_rad)
             mujoco.mj_forward(self.model, self.data)
-            if self.data.ncon:
-                log.warning("%s: the LIMO's body overlaps a wall at the start pose %s", self.plan.name, start)
+            # The chassis box against the wall boxes, as the contacts mj_forward just found: from the plan, so that `up`
+            # says it before anything starts in these words (scenes.start_overlap_said), not only this log.
+            if (overlap := start_overlap_said(self.plan, self.robot.length_m, self.robot.width_m)) is not None:
+                log.warning("%s", overlap)
             self._steps = 0
             self.time_s = 0.0
             self._target = VelocityCommand(0.0, 0.0)

@@ -817,6 +817,53 @@ def test_up_says_the_policys_start_warnings_on_its_terminal_before_it_starts_any
         assert r.exit_code == 0 and "min_cluster_size_m" not in r.output, r.output
 
 
+def test_up_says_the_limos_start_in_a_wall_on_its_terminal_before_it_starts_anything(tmp_path: Path, monkeypatch):
+    """The MuJoCo LIMO warns of a body that overlaps a wall at the scene's start pose in the sim service's log alone
+    (runs/<run>/logs/sim.log): ``up`` said nothing on its terminal. It now says the sim's very line
+    (``scenes.start_overlap_said``, of the scene ``up`` loads to check it, its start and the profile's
+    ``exploration.robot`` box) on stderr before the launcher starts anything, foreground or ``--detach``; nothing for a
+    start clear of the walls, nor where the sim is the 2D one (``--profile lockstep``), whose disc has no such check."""
+    import numpy as np
+    from PIL import Image
+    from typer import echo
+    from typer.testing import CliRunner
+
+    from cso_runtime import launcher
+    from cso_runtime.cli import app
+    from cso_runtime.geometry import Pose2D
+    from cso_runtime.run_profile import load_profile
+    from cso_runtime.scenes import start_overlap_said
+
+    def plan_png(name: str, start_px: tuple[int, int]) -> Path:
+        rgb = np.full((20, 30, 3), (195, 195, 194), dtype=np.uint8)  # 3 x 2 m at 0.1 m a pixel
+        rgb[[0, -1], :] = rgb[:, [0, -1]] = (127, 127, 127)
+        rgb[start_px] = (255, 216, 0)  # one pixel: the start at its centre, yaw 0
+        Image.fromarray(rgb).save(tmp_path / f"{name}.png")
+        return tmp_path / f"{name}.png"
+
+    def started(*args: object, **kwargs: object) -> object:  # run_foreground (live=...) or start_detached: nothing starts
+        echo("LAUNCHER STARTS", err=True)
+        return (0, "started") if "live" not in kwargs else 0
+
+    monkeypatch.setattr(launcher, "run_foreground", started)
+    monkeypatch.setattr(launcher, "start_detached", started)
+    against = plan_png("against", (10, 1))  # x 0.15 m, 0.05 m from the west wall's face: the LIMO's half length is 0.161 m
+    up = ["up", "--method", "greedy-dist", "--runs-dir", str(tmp_path / "runs")]
+    said = "warning: against: the LIMO's body overlaps a wall at the start pose Pose2D(x_m=0.15000000000000002, y_m=0.9500000000000001, yaw_rad=0.0)\n"
+    prof = load_profile("sim", {"scene": str(against)})[0]
+    assert said == f"warning: {start_overlap_said(prof.scene_ref().load(), 0.322, 0.22)}\n" == f"warning: {prof.start_overlap_said()}\n"
+    for how in ([], ["--no-live"], ["--detach"], ["--dry-run"]):
+        r = CliRunner().invoke(app, [*up, "--profile", "sim", "--scene", str(against), *how])
+        assert r.exit_code == 0, r.output
+        assert said in r.output and ("--dry-run" in how or r.output.index(said) < r.output.index("LAUNCHER STARTS")), r.output
+    near = plan_png("near", (10, 4))  # x 0.45 m, 0.35 m from the wall: clear of the LIMO's box, not of a 0.8 m long one
+    for quiet in (["--profile", "sim", "--scene", str(near)], ["--profile", "lockstep", "--scene", str(against)]):
+        r = CliRunner().invoke(app, [*up, "--detach", *quiet])
+        assert r.exit_code == 0 and "overlaps a wall" not in r.output, r.output
+    r = CliRunner().invoke(app, [*up, "--detach", "--profile", "sim", "--scene", str(near), "--set", "exploration.robot.length_m=0.8"])
+    assert r.exit_code == 0 and f"near: the LIMO's body overlaps a wall at the start pose {Pose2D(0.45, 0.9500000000000001, 0.0)}" in r.output, r.output
+
+
 def test_up_of_a_learned_method_the_weights_folder_lacks_names_those_it_holds(tmp_path: Path, monkeypatch):
     """``train --variant cso-sm --out RUN`` then ``up --method cso --weights RUN``: up said only "no weights at
     RUN/cso.pt; train it", not that RUN's weights are cso-sm's, to run with ``--method cso-sm`` (eval said so)."""

@@ -592,6 +592,30 @@ def test_a_start_the_limo_cannot_stand_on_is_refused(start: Pose2D, match: str) 
         MujocoSimulator(FloorPlan("solid", np.zeros((40, 40), dtype=bool), RES, Pose2D(1.0, 1.0, 0.0)), seed=0)
 
 
+def test_the_limo_warns_of_a_start_overlapping_a_wall_in_the_words_up_says_before_it_starts(caplog) -> None:
+    """The MuJoCo LIMO's warning of a body that overlaps a wall at the start is ``scenes.start_overlap_said``, the one
+    check ``up`` makes before anything starts: the same condition (the box body against the wall cells, as the model's
+    contacts after ``mj_forward`` had it) and the same words, at every reset; none for a start clear of the walls."""
+    import logging
+
+    from cso_runtime.scenes import start_overlap_said
+
+    against = box_room(start=Pose2D(RES + 0.13, 2.0, 0.0))  # the LIMO's half length is 0.161 m
+    said = start_overlap_said(against, RobotConfig().length_m, RobotConfig().width_m)
+    assert said is not None
+    with caplog.at_level(logging.WARNING, logger="robot_sim.sim"):
+        sim = MujocoSimulator(against, seed=0)
+        sim.reset(1)
+    assert [r.getMessage() for r in caplog.records if "overlaps a wall" in r.getMessage()] == [said, said]
+    assert sim.data.ncon  # the model has the contact the check said
+    caplog.clear()
+    clear = box_room(start=Pose2D(RES + 0.13, 2.0, 0.5 * math.pi))  # turned across the wall: its half width, 0.11 m
+    assert start_overlap_said(clear, RobotConfig().length_m, RobotConfig().width_m) is None
+    with caplog.at_level(logging.WARNING, logger="robot_sim.sim"):
+        sim = MujocoSimulator(clear, seed=0)
+    assert not sim.data.ncon and not [r for r in caplog.records if "overlaps a wall" in r.getMessage()]
+
+
 def test_the_headless_simulator_needs_no_display_and_a_bad_mujoco_gl_is_explained() -> None:
     """The simulator renders nothing: without DISPLAY or MUJOCO_GL it builds and steps. ``import mujoco`` sets up the
     renderer MUJOCO_GL names, and an unusable one (osmesa without libOSMesa: "'NoneType' object has no attribute

@@ -657,3 +657,30 @@ def test_a_mistyped_count_of_generated_plans_is_refused_at_once(monkeypatch: pyt
     assert [ref.name for ref in refs] == ["gen_small_0", "gen_small_1"] and len(made) == 2
     r = CliRunner().invoke(app, ["scenes", "generated:small:99999999:0", "--limit", "1"])
     assert r.exit_code == 2 and "N must be in [1, 100,000]" in " ".join(r.output.split()), r.output
+
+
+def test_a_start_whose_box_body_overlaps_a_wall_is_said_from_the_plan_alone():
+    """The MuJoCo LIMO warned of a body overlapping a wall at the start pose only from its built model (MuJoCo's
+    contacts after ``mj_forward``), in the sim service's log alone: ``up`` could not say it before anything starts.
+    ``scenes.start_overlap_said`` says it from the plan, the start pose and the body's box (``robot.length_m`` along the
+    heading by ``robot.width_m`` across), in the sim's very words; a body that only touches a wall's face overlaps none,
+    and outside the plan is wall."""
+    from cso_runtime.scenes import body_overlaps_walls, start_overlap_said
+
+    free = np.zeros((24, 24), dtype=bool)
+    free[1:-1, 1:-1] = True  # 0.05 m cells: the inner wall faces at x, y = 0.05 and 1.15 m
+
+    def said(start: Pose2D, length_m: float = 0.322, width_m: float = 0.22) -> str | None:
+        return start_overlap_said(FloorPlan("tiny", free, 0.05, start), length_m, width_m)
+
+    assert said(Pose2D(0.6, 0.6, 0.0)) is None  # in the middle of the room
+    against = Pose2D(0.05 + 0.13, 0.6, 0.0)  # 0.13 m from the west wall: the LIMO's half length is 0.161 m
+    assert said(against) == f"tiny: the LIMO's body overlaps a wall at the start pose {against}"
+    assert said(Pose2D(0.05 + 0.13, 0.6, 0.5 * math.pi)) is None  # turned across it: its half width, 0.11 m
+    assert said(against, length_m=0.25) is None  # the footprint is the config's
+    assert said(Pose2D(0.05 + 0.161, 0.6, 0.0)) is None  # its front face on the wall's: touching, no overlap
+    assert said(Pose2D(0.6, 0.05 + 0.1, 0.0)) is not None  # a side into the south wall
+    edge = np.ones((24, 24), dtype=bool)  # no walls drawn: the grid's edge is the wall
+    open_plan = FloorPlan("open", edge, 0.05, against)
+    assert body_overlaps_walls(open_plan, Pose2D(0.1, 0.6, 0.0), 0.322, 0.22)  # its back 0.061 m beyond x = 0
+    assert not body_overlaps_walls(open_plan, against, 0.322, 0.22) and not body_overlaps_walls(open_plan, Pose2D(0.6, 0.6, 0.3), 0.322, 0.22)
