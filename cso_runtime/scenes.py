@@ -135,7 +135,11 @@ def start_overlap_said(plan: FloorPlan, length_m: float, width_m: float) -> str 
     The pose as the plan's frame has it. The 2D simulator's disc has no such check."""
     if not body_overlaps_walls(plan, plan.start, length_m, width_m):
         return None
-    return f"{plan.name}: the LIMO's body overlaps a wall at the start pose {plan.start}"
+    start = plan.start
+    return (
+        f"{plan.name}: the LIMO's body overlaps a wall at the start pose (x {start.x_m:.3f} m, y {start.y_m:.3f} m, "
+        f"yaw {start.yaw_rad:.3f} rad): its contacts push it out as the episode starts"
+    )
 
 
 def describe_scene(plan: FloorPlan) -> dict[str, object]:
