@@ -331,8 +331,8 @@ def _warn_of_a_watchdog_within_a_step(prof: Profile) -> None:
 
 
 def _warn_of_a_start_in_a_wall(prof: Profile) -> None:
-    """``up``: say, in the sim service's own words, when the MuJoCo LIMO's body overlaps a wall at the scene's start pose
-    (``Profile.start_overlap_said``), which the sim logs in runs/<run>/logs/sim.log alone; the run goes on as asked."""
+    """``up``: say, in the sim service's own words, when the robot overlaps a wall at the scene's start pose (the MuJoCo
+    LIMO's box, the 2D simulator's disc: ``Profile.start_overlap_said``), which the sim logs in runs/<run>/logs/sim.log alone; the run goes on as asked."""
     said = prof.start_overlap_said()
     if said is not None:
         typer.echo(f"warning: {said}", err=True)

@@ -291,14 +291,21 @@ class Profile:
         return refs[0]
 
     def start_overlap_said(self) -> str | None:
-        """The MuJoCo LIMO's warning of a body overlapping a wall at the scene's start pose (``scenes.start_overlap_said``,
-        with ``exploration.robot``'s box), which its sim service logs as it starts, for ``up`` to say before anything
-        starts; None where there is none, or no MuJoCo LIMO (the 2D simulator's disc has no such check, a real robot no
-        scene). The plan ``validate`` loaded is loaded again: a few ms (a generated middle plan 2 ms, the builtin 7 ms)."""
-        if self.simulator() != "mujoco":
+        """The simulator's warning of its robot overlapping a wall at the scene's start pose, which its sim service logs
+        as it starts, for ``up`` to say before anything starts: the MuJoCo LIMO's box (``scenes.start_overlap_said``,
+        ``exploration.robot``'s length and width), the 2D simulator's disc (``simulator.disc_start_overlap_said``,
+        ``exploration.robot.disc_radius_m``); None where there is none, or no simulator (a real robot has no scene). The
+        plan ``validate`` loaded is loaded again: a few ms (a generated middle plan 2 ms, the builtin 7 ms)."""
+        simulator = self.simulator()
+        if simulator is None:
             return None
         robot = self.exploration_config().robot
-        return start_overlap_said(self.scene_ref().load(), robot.length_m, robot.width_m)
+        plan = self.scene_ref().load()
+        if simulator == "mujoco":
+            return start_overlap_said(plan, robot.length_m, robot.width_m)
+        from cso_runtime.simulator import WallClearance, disc_start_overlap_said  # noqa: PLC0415 - as simulator_settings
+
+        return disc_start_overlap_said(WallClearance(plan, robot.disc_radius_m))
 
     def check_grid_bound(self) -> None:
         """ConfigError for a ``max_grid_cells`` out of range, or below the cells of the grid the profile itself sets (a

@@ -132,14 +132,17 @@ def start_overlap_said(plan: FloorPlan, length_m: float, width_m: float) -> str 
     """The MuJoCo LIMO's warning of a body (``robot.length_m`` by ``robot.width_m``) that overlaps a wall at the plan's
     start pose (``body_overlaps_walls``), or None: what its simulator logs at each reset (the run goes on, the contact
     pushing the body out) and ``up`` says on its terminal before anything starts, from the plan alone, no model built.
-    The pose as the plan's frame has it. The 2D simulator's disc has no such check."""
+    The 2D simulator's disc has its own (``simulator.disc_start_overlap_said``)."""
     if not body_overlaps_walls(plan, plan.start, length_m, width_m):
         return None
+    return overlap_at_start_said(plan, "the LIMO's body", "its contacts push it out as the episode starts")
+
+
+def overlap_at_start_said(plan: FloorPlan, body: str, then: str) -> str:
+    """A simulator's words for its ``body`` overlapping a wall at ``plan``'s start pose, and what ``then`` happens: the
+    pose as the plan's frame has it."""
     start = plan.start
-    return (
-        f"{plan.name}: the LIMO's body overlaps a wall at the start pose (x {start.x_m:.3f} m, y {start.y_m:.3f} m, "
-        f"yaw {start.yaw_rad:.3f} rad): its contacts push it out as the episode starts"
-    )
+    return f"{plan.name}: {body} overlaps a wall at the start pose (x {start.x_m:.3f} m, y {start.y_m:.3f} m, yaw {start.yaw_rad:.3f} rad): {then}"
 
 
 def describe_scene(plan: FloorPlan) -> dict[str, object]:

@@ -8,6 +8,7 @@ protocol with physics. Mapping, frontiers, policies and the planner never know w
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -18,10 +19,12 @@ import numpy as np
 from cso_runtime.config import ConfigError, ExplorationConfig, RobotConfig, SensorConfig, from_dict
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, returns_as_float32, wrap_angle_rad
 from cso_runtime.raycast import cast_rays, ray_codes
-from cso_runtime.scenes import FloorPlan
+from cso_runtime.scenes import FloorPlan, overlap_at_start_said
 
 if TYPE_CHECKING:
     from robot_sim import MujocoSimConfig
+
+log = logging.getLogger(__name__)
 
 
 @runtime_checkable
@@ -61,6 +64,57 @@ class StateSaving(Protocol):
         """Back to what ``save_state`` returned."""
 
 
+class WallClearance:
+    """The 2D simulator's collision test: the exact distance from a point to a plan's nearest wall cell (cells are squares,
+    cells outside the plan walls), up to 2 radii of its collision disc, and whether the disc round the point overlaps a
+    wall (its clearance below its radius). One for the simulator's every substep (``KinematicSimulator.clearance_m``)
+    and for the check of a start from the plan alone (``disc_start_overlap_said``)."""
+
+    def __init__(self, plan: FloorPlan, radius_m: float) -> None:
+        self.plan = plan
+        self.radius_m = radius_m
+        self._padded_walls: np.ndarray | None = None
+        """The plan's walls padded by the window's half-width (made at the first call)."""
+
+    def __call__(self, x_m: float, y_m: float) -> float:
+        """Exact distance from (x, y) to the nearest wall cell, up to 2 radii (inf beyond). The window of cells around
+        (x, y) is a slice of the plan's walls padded by its half-width."""
+        g = self.plan.geometry
+        r = int(np.ceil(2 * self.radius_m / g.resolution_m)) + 1
+        # GridGeometry.world_to_cell of one point, in plain floats (the same division and floor).
+        cy, cx = math.floor((y_m - g.origin_y_m) / g.resolution_m), math.floor((x_m - g.origin_x_m) / g.resolution_m)
+        if self._padded_walls is None:
+            self._padded_walls = np.pad(~self.plan.free, r, constant_values=True)
+        if 0 <= cy < g.shape[0] and 0 <= cx < g.shape[1]:
+            window = self._padded_walls[cy : cy + 2 * r + 1, cx : cx + 2 * r + 1]  # cells cy - r .. cy + r
+        else:  # the robot's centre off the plan: every cell of the window outside it is a wall
+            iy, ix = np.mgrid[cy - r : cy + r + 1, cx - r : cx + r + 1]
+            window = ~g.in_bounds(iy, ix)
+            window[~window] = ~self.plan.free[iy[~window], ix[~window]]
+        wy, wx = np.divmod(np.flatnonzero(window), 2 * r + 1)
+        if not len(wy):
+            return math.inf
+        return float(np.min(g.cell_gap_m(wy + (cy - r), wx + (cx - r), x_m, y_m)))
+
+    def overlaps(self, x_m: float, y_m: float) -> bool:
+        """Whether the disc round (x, y) shares some area with a wall cell: its clearance below its radius (a disc that
+        only touches a wall's face overlaps none)."""
+        return self(x_m, y_m) < self.radius_m
+
+
+def disc_start_overlap_said(clearance: WallClearance) -> str | None:
+    """The 2D simulator's warning of its collision disc (``robot.disc_radius_m``, ``clearance.radius_m``) overlapping a
+    wall at the plan's start pose (``WallClearance.overlaps``, its own collision test), or None: what it logs at each
+    reset (the run goes on, the robot moving only where that takes it no deeper into the wall) and ``up`` says before
+    anything starts, from the plan alone (``Profile.start_overlap_said``; ``scenes.start_overlap_said`` is the MuJoCo
+    LIMO's box)."""
+    start = clearance.plan.start
+    if not clearance.overlaps(start.x_m, start.y_m):
+        return None
+    body = f"the 2D simulator's collision disc (radius {clearance.radius_m:g} m)"
+    return overlap_at_start_said(clearance.plan, body, "it can only move where that takes it no deeper into the wall")
+
+
 class KinematicSimulator:
     """Fast 2D simulator: unicycle motion that stops at walls, LiDAR by ray casting the plan. The robot collides as a
     disc, ``robot.disc_radius_m`` (the LIMO's 0.12 m), the planner's ``body: disc``; planning inflates by more."""
@@ -79,13 +133,12 @@ class KinematicSimulator:
 
     def __init__(self, plan: FloorPlan, sensor: SensorConfig | None = None, robot: RobotConfig | None = None, seed: int | None = None) -> None:
         self.plan = plan
-        self._padded_walls: np.ndarray | None = None
-        """The plan's walls padded by ``clearance_m``'s window half-width (made at its first call)."""
         self._ray_codes: np.ndarray | None = None
         """``raycast.ray_codes`` of the plan's walls (made at the first scan)."""
         self.sensor = sensor or SensorConfig()
         self.robot = robot or RobotConfig()
         self.collision_radius_m = self.robot.disc_radius_m
+        self._clearance = WallClearance(plan, self.collision_radius_m)
         self.substeps = self.substeps_for(self.robot)
         n = max(1, int(round(self.sensor.fov_deg / self.sensor.resolution_deg)))
         fov = math.radians(self.sensor.fov_deg)
@@ -103,6 +156,9 @@ class KinematicSimulator:
         start = self.plan.start
         yaw_rad = start.yaw_rad if -math.pi <= start.yaw_rad < math.pi else wrap_angle_rad(start.yaw_rad)
         self._pose = Pose2D(start.x_m, start.y_m, yaw_rad)
+        # As the MuJoCo LIMO logs its box's: in the words `up` says before anything starts (Profile.start_overlap_said).
+        if (overlap := disc_start_overlap_said(self._clearance)) is not None:
+            log.warning("%s", overlap)
         self.time_s = 0.0
         self.collisions = 0
         self._scan: tuple[Pose2D, LaserScan] | None = None
@@ -148,25 +204,13 @@ class KinematicSimulator:
         return LaserScan(self._angle_min, self._increment, self.sensor.range_min_m, self.sensor.range_max_m, ranges32, self.time_s)
 
     def clearance_m(self, x_m: float, y_m: float) -> float:
-        """Exact distance from (x, y) to the nearest wall cell (cells are squares), up to 2 radii.
-        Cells outside the plan are walls. Called on every substep: the window of cells around (x, y)
-        is a slice of the plan's walls padded by its half-width."""
-        g = self.plan.geometry
-        r = int(np.ceil(2 * self.collision_radius_m / g.resolution_m)) + 1
-        # GridGeometry.world_to_cell of one point, in plain floats (the same division and floor).
-        cy, cx = math.floor((y_m - g.origin_y_m) / g.resolution_m), math.floor((x_m - g.origin_x_m) / g.resolution_m)
-        if self._padded_walls is None:
-            self._padded_walls = np.pad(~self.plan.free, r, constant_values=True)
-        if 0 <= cy < g.shape[0] and 0 <= cx < g.shape[1]:
-            window = self._padded_walls[cy : cy + 2 * r + 1, cx : cx + 2 * r + 1]  # cells cy - r .. cy + r
-        else:  # the robot's centre off the plan: every cell of the window outside it is a wall
-            iy, ix = np.mgrid[cy - r : cy + r + 1, cx - r : cx + r + 1]
-            window = ~g.in_bounds(iy, ix)
-            window[~window] = ~self.plan.free[iy[~window], ix[~window]]
-        wy, wx = np.divmod(np.flatnonzero(window), 2 * r + 1)
-        if not len(wy):
-            return math.inf
-        return float(np.min(g.cell_gap_m(wy + (cy - r), wx + (cx - r), x_m, y_m)))
+        """Exact distance from (x, y) to the nearest wall cell (``WallClearance``), up to 2 radii. Called on every substep."""
+        return self._clearance(x_m, y_m)
+
+    def overlaps_walls(self, x_m: float, y_m: float) -> bool:
+        """Whether the collision disc round (x, y) is in contact (``WallClearance.overlaps``): what ``_can_move`` lets no
+        move deepen."""
+        return self._clearance.overlaps(x_m, y_m)
 
     def _can_move(self, clearance_now_m: float, x_m: float, y_m: float, nx_m: float, ny_m: float) -> tuple[bool, float]:
         """A move from (x, y) to (nx, ny) is allowed when the footprint stays clear of walls, or, for a robot already in

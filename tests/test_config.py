@@ -822,7 +822,8 @@ def test_up_says_the_limos_start_in_a_wall_on_its_terminal_before_it_starts_anyt
     (runs/<run>/logs/sim.log): ``up`` said nothing on its terminal. It now says the sim's very line
     (``scenes.start_overlap_said``, of the scene ``up`` loads to check it, its start and the profile's
     ``exploration.robot`` box) on stderr before the launcher starts anything, foreground or ``--detach``; nothing for a
-    start clear of the walls, nor where the sim is the 2D one (``--profile lockstep``), whose disc has no such check."""
+    start clear of the walls. The 2D simulator (``--profile lockstep``) had no such check for its disc: it says its own
+    (``simulator.disc_start_overlap_said``, ``exploration.robot.disc_radius_m``), in its words."""
     import numpy as np
     from PIL import Image
     from typer import echo
@@ -856,9 +857,15 @@ def test_up_says_the_limos_start_in_a_wall_on_its_terminal_before_it_starts_anyt
         assert r.exit_code == 0, r.output
         assert said in r.output and ("--dry-run" in how or r.output.index(said) < r.output.index("LAUNCHER STARTS")), r.output
     near = plan_png("near", (10, 4))  # x 0.45 m, 0.35 m from the wall: clear of the LIMO's box, not of a 0.8 m long one
-    for quiet in (["--profile", "sim", "--scene", str(near)], ["--profile", "lockstep", "--scene", str(against)]):
+    for quiet in (["--profile", "sim", "--scene", str(near)], ["--profile", "lockstep", "--scene", str(near)]):
         r = CliRunner().invoke(app, [*up, "--detach", *quiet])
         assert r.exit_code == 0 and "overlaps a wall" not in r.output, r.output
+    disc = "warning: against: the 2D simulator's collision disc (radius 0.12 m) overlaps a wall at the start pose (x 0.150 m, y 0.950 m, yaw 0.000 rad)"
+    assert f"warning: {load_profile('lockstep', {'scene': str(against)})[0].start_overlap_said()}".startswith(disc)
+    for how in ([], ["--detach"]):
+        r = CliRunner().invoke(app, [*up, "--profile", "lockstep", "--scene", str(against), *how])
+        assert r.exit_code == 0 and disc in r.output and r.output.index(disc) < r.output.index("LAUNCHER STARTS"), r.output
+        assert "the LIMO's body" not in r.output, r.output
     r = CliRunner().invoke(app, [*up, "--detach", "--profile", "sim", "--scene", str(near), "--set", "exploration.robot.length_m=0.8"])
     assert r.exit_code == 0 and "near: the LIMO's body overlaps a wall at the start pose (x 0.450 m, y 0.950 m, yaw 0.000 rad)" in r.output, r.output
 

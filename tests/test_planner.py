@@ -344,6 +344,45 @@ def test_kinematic_clearance_is_the_exact_distance_to_the_nearest_wall_cell():
     assert sim.clearance_m(-0.5, 1.6) == 0.0 and sim.clearance_m(5.0, -1.0) == 0.0  # off the plan
 
 
+def test_a_start_whose_collision_disc_overlaps_a_wall_is_said_from_the_plan_alone_and_logged_at_each_reset(caplog):
+    """The 2D simulator's disc starting in a wall ran on silently (it can only move away): the MuJoCo LIMO's box had its
+    warning, the disc none. ``disc_start_overlap_said`` says it from the plan and the radius by the simulator's own
+    collision test (``WallClearance``: the clearance below the radius; cells off the plan are walls), and the simulator
+    logs it at each reset in those words; none for a start clear of the walls."""
+    import logging
+
+    from cso_runtime.simulator import WallClearance, disc_start_overlap_said
+
+    free = np.zeros((24, 24), dtype=bool)
+    free[1:-1, 1:-1] = True  # 0.05 m cells: the inner wall faces at x, y = 0.05 and 1.15 m
+
+    def said(start: Pose2D, radius_m: float = 0.12, cells: np.ndarray = free) -> str | None:
+        return disc_start_overlap_said(WallClearance(FloorPlan("tiny", cells, 0.05, start), radius_m))
+
+    assert said(Pose2D(0.6, 0.6, 0.0)) is None  # in the middle of the room
+    against = Pose2D(0.05 + 0.11, 0.6, 0.0)  # 0.11 m from the west wall's face: the disc's radius is 0.12 m
+    words = "tiny: the 2D simulator's collision disc (radius 0.12 m) overlaps a wall at the start pose (x 0.160 m, y 0.600 m, yaw 0.000 rad)"
+    assert said(against) == f"{words}: it can only move where that takes it no deeper into the wall"
+    assert said(Pose2D(0.05 + 0.11, 0.6, 0.5 * math.pi)) is not None  # a disc: its heading does not matter
+    assert said(against, radius_m=0.1) is None  # the radius is the config's
+    assert said(Pose2D(0.05 + 0.13, 0.6, 0.0)) is None  # 0.01 m clear
+    assert said(Pose2D(0.6, 1.15 - 0.05, 0.0)) is not None  # into the north wall
+    assert said(against, cells=np.ones((24, 24), dtype=bool)) is None and said(Pose2D(0.1, 0.6, 0.0), cells=np.ones((24, 24), dtype=bool)) is not None  # off the plan is wall
+
+    plan = FloorPlan("tiny", free, 0.05, against)
+    with caplog.at_level(logging.WARNING, logger="cso_runtime.simulator"):
+        sim = KinematicSimulator(plan, seed=0)
+        sim.reset(1)
+    assert [r.getMessage() for r in caplog.records if "overlaps a wall" in r.getMessage()] == [said(against)] * 2
+    assert sim.overlaps_walls(against.x_m, against.y_m)  # the simulator's own test, which the check is
+    sim.step(VelocityCommand(-0.2, 0.0))  # back into the wall: refused, the disc in contact moves no deeper
+    assert sim.true_pose().x_m == against.x_m and sim.collisions
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="cso_runtime.simulator"):
+        KinematicSimulator(FloorPlan("tiny", free, 0.05, Pose2D(0.6, 0.6, 0.0)), seed=0)
+    assert not [r for r in caplog.records if "overlaps a wall" in r.getMessage()]
+
+
 def test_a_narrow_sensor_turns_at_the_goal_until_the_goal_is_in_view():
     """With the depth camera (79 degrees) a frontier goal reached beside the robot would be judged
     unobservable without ever being looked at: the planner turns in place first, then reports reached. A
