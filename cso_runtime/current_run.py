@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cso_runtime.outputs import results_said, write_text_atomic
+from cso_runtime.outputs import partial_path, results_said, write_text_atomic
 from cso_runtime.supervision import pid_alive, process_start_ticks, process_state, run_process_alive, signal_group
 
 if TYPE_CHECKING:  # `up` imports this module first of all (``record_starting_up``): not the profile's modules yet
@@ -292,12 +292,9 @@ def down(runs_dir: Path, timeout_s: float | None = None, stop_starting: bool = T
     left = [p for p in [pid, *service_pids] if pid_alive(p)]
     if not left and not launcher_alive:  # before its current-run file goes: a reader that finds none (`status --watch` of
         record_launcher_died(info)  # a starting run) reads its run.json for how it ended, and found it still "starting"
-    try:
-        cur = read_current_run(runs_dir)
-        if cur is not None and cur.get("run_id") == info.get("run_id"):
-            (runs_dir / CURRENT_RUN).unlink()
-    except OSError:
-        pass
+    cur = read_current_run(runs_dir)
+    if cur is not None and cur.get("run_id") == info.get("run_id"):
+        clear_current_run(runs_dir, str(info.get("run_id")))
     if left:
         return False, "; ".join([f"processes still running: {left}", *starting])
     notes = ["its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop"] if continued else []
@@ -308,6 +305,36 @@ def down(runs_dir: Path, timeout_s: float | None = None, stop_starting: bool = T
         notes.append(f"its launcher did not stop on SIGINT within {timeout_s:g} s: {escalated}")
     run_left = [where] if launcher_alive and (where := what_a_stopped_run_left(info)) else []
     return True, "; ".join([f"stopped run {info.get('run_id')}" + (f" ({'; '.join(notes)})" if notes else ""), *run_left, *starting])
+
+
+def clear_current_run(runs_dir: Path, run_id: str) -> None:
+    """Remove ``runs_dir``'s current-run file if it is run ``run_id``'s, never another run's: ``down``, which holds no
+    runs lock (the launcher holds it for its whole run, and a second launcher that finds it held refuses to start), read
+    the file and then unlinked it, and a new run's launcher writing its own in between (``write_text_atomic``, a rename)
+    lost it. The file is taken aside by a rename (atomic: whichever file is there then, whole), read, and removed only if
+    it is ``run_id``'s; another's is linked back, unless a newer one has been written since, which stands."""
+    path = runs_dir / CURRENT_RUN
+    taken = partial_path(path)
+    try:
+        os.rename(path, taken)
+    except OSError:  # gone meanwhile (the launcher removed its own), or the folder cannot be written
+        return
+    try:
+        info = json.loads(taken.read_text())
+        mine = isinstance(info, dict) and info.get("run_id") == run_id
+    except (OSError, ValueError):
+        mine = False
+    if not mine:
+        try:
+            os.link(taken, path)  # back where it was, unless a newer one is there now (EEXIST): that one stands
+        except FileExistsError:
+            pass
+        except OSError:  # a file system without hard links: back by a rename, where no newer one is there
+            with contextlib.suppress(OSError):
+                if not path.exists():
+                    os.rename(taken, path)
+    with contextlib.suppress(OSError):
+        taken.unlink(missing_ok=True)
 
 
 def what_a_stopped_run_left(info: dict[str, Any]) -> str:

@@ -663,6 +663,42 @@ def test_down_says_once_that_the_run_file_is_not_usable(tmp_path, caplog):
     assert not ok and message == f"nothing running (no usable {runs / 'current.json'})" and len(warned) == 1, (message, warned)
 
 
+def test_down_never_removes_a_run_file_a_new_run_wrote_after_its_last_look(tmp_path, monkeypatch):
+    """``down`` read ``current.json`` (its run's) and then unlinked it, without the runs folder's lock: a new run's
+    launcher that wrote its own in between (a rename over it) lost it, and ``status``, ``down`` and ``logs`` saw no run
+    while it ran. ``down`` now takes the file aside by a rename, reads what it took, and removes only its own run's: the
+    new run's is put back. Its own run's file it still removes."""
+    from cso_runtime import current_run
+    from cso_runtime.outputs import write_text_atomic
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    path = runs / "current.json"
+    new_run = json.dumps({"run_id": "new", "run_dir": ""})
+    real_read = current_run.read_current_run
+    reads: list[str] = []
+
+    def read_then_a_new_run_writes(runs_dir: Path, warn: bool = True):  # the new launcher's write right after down's last look
+        info = real_read(runs_dir, warn)
+        reads.append(str(info and info.get("run_id")))
+        if len(reads) == 2:
+            write_text_atomic(path, new_run)
+        return info
+
+    monkeypatch.setattr(current_run, "read_current_run", read_then_a_new_run_writes)
+    path.write_text(json.dumps({"run_id": "old", "run_dir": ""}))  # its launcher gone (no pid): down clears its file
+    ok, said = current_run.down(runs, 1.0)
+    assert ok and said.startswith("stopped run old") and reads == ["old", "old"], (said, reads)
+    assert path.read_text() == new_run and [p.name for p in runs.iterdir()] == ["current.json"]
+    monkeypatch.setattr(current_run, "read_current_run", real_read)
+    path.write_text(json.dumps({"run_id": "old", "run_dir": ""}))
+    assert current_run.down(runs, 1.0)[0] and not path.exists() and not list(runs.iterdir())
+    current_run.clear_current_run(runs, "old")  # none there: nothing to do
+    write_text_atomic(path, new_run)
+    current_run.clear_current_run(runs, "old")  # another run's: left as it is
+    assert path.read_text() == new_run and [p.name for p in runs.iterdir()] == ["current.json"]
+
+
 def test_runs_of_a_folder_that_does_not_exist_says_so(tmp_path):
     """``runs --runs-dir nosuch`` answered "no runs in nosuch", exit 0, as of an empty runs folder: a folder that is not
     there (a typo, another working folder) is said as such, exit 1, as ``logs``, ``status`` and ``down`` answer of it;
