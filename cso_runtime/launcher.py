@@ -1982,6 +1982,9 @@ def _wait_for_detached(
     deadline = time.monotonic() + ready_timeout_s
     try:
         while time.monotonic() < deadline and not stop.is_set():
+            # Its exit first, then its run.json: read the other way round, a launcher that wrote its last run.json and
+            # exited between the two looks (0 after a `down` of a done run) was said by its exit code alone, 0 as 1.
+            exit_code = proc.poll()
             info: Any = None
             with contextlib.suppress(OSError, ValueError):
                 info = json.loads((run_dir / "run.json").read_text())
@@ -1991,11 +1994,11 @@ def _wait_for_detached(
                 return _detached_start_stopped(proc, info, run_dir, log_path)
             # Its exit before its run.json: a launcher killed (SIGKILL) after it spawned its services left a run.json that
             # names them, and `up --detach` said "started" (exit 0) of a run with no launcher, its services orphaned.
-            if proc.poll() in (-signal.SIGTERM, -signal.SIGKILL):  # `down` as it started (STARTING_LAUNCHER), before its handlers
+            if exit_code in (-signal.SIGTERM, -signal.SIGKILL):  # `down` as it started (STARTING_LAUNCHER), before its handlers
                 _stop_unstarted_launcher(proc, Launcher(profile, data, run_dir, record_path, animate), EXIT_INTERRUPTED)
                 return EXIT_INTERRUPTED, f"the launcher (pid {proc.pid}) was stopped as it started (`cso-runtime down`?): no run was started; see {log_path}"
-            if proc.poll() is not None:  # its own code (2: refused, 3: no router), so `up --detach` says the same as `up`
-                return proc.returncode or 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_tail(log_path)}"
+            if exit_code is not None:  # its own code (2: refused, 3: no router), so `up --detach` says the same as `up`
+                return exit_code or 1, f"the launcher exited with code {exit_code}; see {log_path}:\n{log_tail(log_path)}"
             if isinstance(info, dict) and info.get("services") and info.get("endpoints"):
                 follow = runs_command("logs -f", run_dir.parent)  # of this runs folder: a plain `logs -f` reads ./runs
                 return 0, (

@@ -132,8 +132,9 @@ def starting_launcher_pid() -> int | None:
 
 def launcher_gone() -> int | None:
     """The pid of the launcher that started this service (``CSO_PARENT_PID``) once it is gone (killed, crashed:
-    the kernel's SIGTERM that ``_die_with_launcher`` asked for is then why the service stops); None while it runs,
-    or for a service no launcher started. The kernel sends that SIGTERM as the launcher's first thread exits,
+    the kernel's parent-death signal that ``_die_with_launcher`` asked for, SIGCONT, is then why the service stops; a
+    command node's guard asks for SIGTERM); None while it runs, or for a service no launcher started. The kernel sends
+    that signal as the launcher's thread that spawned it exits,
     before the service is handed to another parent (measured: some 10 ms later, as Zenoh's threads exit): a
     launcher whose main thread is already a zombie is gone too."""
     parent = starting_launcher_pid()

@@ -1516,6 +1516,46 @@ def test_up_detach_says_how_a_run_that_stopped_before_it_looked_ended_not_that_i
     assert code == 0 and message.startswith("run run1 started and has ended already: done (launcher pid"), (code, message)
 
 
+def test_up_detach_reads_run_json_after_its_launchers_exit_not_before(tmp_path):
+    """``up --detach`` read run.json, then looked at its launcher's exit: a launcher that wrote its last run.json
+    (``stopped``, done: a ``down`` of a run whose episode was over) and exited between the two looks was said by its exit
+    code alone, "the launcher exited with code 0", exit 1. Its exit is looked at first, then the run.json it left."""
+    from cso_runtime.launcher import _wait_for_detached
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    run_dir = tmp_path / "runs" / "run1"
+    (run_dir / "logs").mkdir(parents=True)
+    log_path = run_dir / "logs" / "launcher.log"
+    log_path.write_text("stopping services\n")
+    running = {
+        "run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "state": "starting",
+        "services": {"sim": {"pid": None, "start_ticks": None, "restarts": 0, "gave_up": False}},
+    }  # fmt: skip
+    (run_dir / "run.json").write_text(json.dumps({**running, "endpoints": []}))  # not yet up: `up --detach` waits
+
+    class EndsAsItIsLookedAt:
+        """The launcher: at the first look at its exit it is still up, and then ends its run, done, and exits (0)."""
+
+        pid, returncode, looks = 4242, None, 0
+
+        def poll(self) -> int | None:
+            self.looks += 1
+            if self.looks == 1:
+                return None
+            if self.returncode is None:
+                stopped = {**running, "state": "stopped", "outcome": "done", "exit_code": 0}
+                (run_dir / "run.json").write_text(json.dumps(stopped))
+                self.returncode = 0
+            return self.returncode
+
+        def wait(self, timeout: float | None = None) -> int:
+            return 0
+
+    code, message = _wait_for_detached(EndsAsItIsLookedAt(), profile, data, run_dir, None, False, log_path, 5.0, threading.Event())  # type: ignore[arg-type]
+    assert code == 0 and message.startswith("run run1 started and has ended already: done (launcher pid 4242)"), (code, message)
+
+
 def test_up_detach_of_a_launcher_killed_after_it_spawned_its_services_does_not_say_started(tmp_path):
     """``up --detach`` read run.json before it looked at its launcher: a launcher killed (SIGKILL: out of memory, a
     user's ``kill -9``) after it wrote that its services and router are up left run.json saying so, and ``up --detach``
