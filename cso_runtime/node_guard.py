@@ -25,7 +25,14 @@ import subprocess
 import sys
 import time
 
-from cso_runtime.processes import PARENT_CHECK_PERIOD_S, STACK_DUMP_SIGNAL, launcher_gone, signal_on_parent_death
+from cso_runtime.processes import (
+    PARENT_CHECK_PERIOD_S,
+    PARENT_PID_ENV,
+    STACK_DUMP_SIGNAL,
+    launcher_gone,
+    signal_on_parent_death,
+    starting_launcher_pid,
+)
 
 EXIT_NOT_STARTED = 2
 """The node's executable could not be started (gone or made not executable since ``up`` checked it): a configuration
@@ -58,6 +65,25 @@ def become_subreaper() -> bool:
 def _node_death_signal() -> None:
     """In the node's process, before its executable runs: SIGTERM when the guard dies."""
     signal_on_parent_death(signal.SIGTERM)
+
+
+def node_environment() -> dict[str, str]:
+    """The node's environment: the guard's, but for ``CSO_PARENT_PID`` (``processes.PARENT_PID_ENV``), the guard's own
+    pid when a launcher started the guard, unset when none did (the guard started by hand). The guard is the node's
+    parent and stops it when the launcher is gone (``PR_SET_PDEATHSIG``, ``stop_group``): to a node that runs one of the
+    runtime's Python services (``python -m services.NAME``, or through ``nice``, ``taskset``, ``env``, which exec it),
+    the guard is its launcher, and the service stops cleanly, or exits ``ORPHAN_STOP_S`` later, once the guard is gone
+    (``services.common._die_with_launcher``). Given the launcher's pid, that service's parent (the guard) was never that
+    pid: ``processes.launcher_gone`` said the launcher gone at once, and the service stopped as it started. A wrapper
+    that stays its parent (forks it and waits) is its parent instead of the guard, and does the same. The launcher gives
+    a command node an empty ``CSO_INCARNATION``: such a service declares its ``alive/<name>`` token alone, which (its
+    name the node's) is the node's coming up."""
+    env = dict(os.environ)
+    if starting_launcher_pid() is None:
+        env.pop(PARENT_PID_ENV, None)
+    else:
+        env[PARENT_PID_ENV] = str(os.getpid())
+    return env
 
 
 def stop_group(stop_timeout_s: float, node: subprocess.Popen) -> None:
@@ -186,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     subreaper = become_subreaper()
     say("INFO", f"starting {shlex.join(command)} (guard pid {os.getpid()})")  # before the node's first line
     try:
-        node = subprocess.Popen(command, stdin=subprocess.DEVNULL, preexec_fn=_node_death_signal)  # noqa: PLW1509 - the guard has one thread
+        node = subprocess.Popen(command, stdin=subprocess.DEVNULL, env=node_environment(), preexec_fn=_node_death_signal)  # noqa: PLW1509 - the guard has one thread
     except OSError as exc:
         say("ERROR", f"cannot start {command[0]!r}: {exc.strerror or exc}")
         return EXIT_NOT_STARTED

@@ -394,6 +394,37 @@ def test_the_guard_exits_as_its_node_did(tmp_path: Path, command: list[str], cod
     assert r.returncode == code, r.stderr
 
 
+LAUNCHER_SEEN = (
+    "import json, os; from cso_runtime.processes import launcher_gone;"
+    " print(json.dumps([os.environ.get('CSO_PARENT_PID'), os.getppid(), launcher_gone()]))"
+)
+"""A node that prints what a Python service of the runtime sees of its launcher: ``CSO_PARENT_PID``, its parent's pid,
+and ``launcher_gone()``."""
+
+
+@pytest.mark.parametrize("wrapper", [[], ["nice", "-n", "1"], ["env", "CSO_NODE_EXTRA=1"]])
+@pytest.mark.parametrize("by_launcher", [True, False])
+def test_a_python_service_run_as_a_command_node_takes_its_guard_for_its_launcher(wrapper: list[str], by_launcher: bool):
+    """A command node that runs one of the runtime's Python services (``python -m services.mapper``, through ``nice``
+    or ``env`` as one pins or renices a node) got the launcher's pid in ``CSO_PARENT_PID``, while its parent is the
+    guard: ``launcher_gone`` said the launcher gone as it started, and the service stopped at once. Its guard, which
+    stops it once the launcher is gone, is its launcher; a guard no launcher started (by hand) gives it none."""
+    env = {k: v for k, v in os.environ.items() if k != "CSO_PARENT_PID"}
+    if by_launcher:
+        env["CSO_PARENT_PID"] = str(os.getpid())  # this test is the guard's launcher, as `supervision.Child` starts it
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
+    guard = subprocess.Popen(
+        [*python_module_argv("cso_runtime.node_guard"), "--", *wrapper, sys.executable, "-c", LAUNCHER_SEEN],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    out, err = guard.communicate(timeout=30)
+    assert guard.returncode == 0, err
+    parent_pid_env, parent, gone = json.loads(out)
+    assert parent == guard.pid, "the node is the guard's child (its wrapper exec'd it)"
+    assert gone is None, f"the node takes its launcher ({gone}) for gone while it runs"
+    assert parent_pid_env == (str(guard.pid) if by_launcher else None), (parent_pid_env, guard.pid)
+
+
 def test_the_docs_command_node_section_is_what_up_takes(tmp_path: Path):
     """docs/own-service.md's command node section, its executable the example's: a profile ``up`` takes, with the
     node's inputs in the dataflow."""
