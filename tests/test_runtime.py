@@ -1476,43 +1476,49 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
             kill_leftovers(runs, [p.pid for p in started])
 
 
-def test_up_detach_says_how_a_run_that_stopped_before_it_looked_ended_not_that_it_started(tmp_path):
-    """``up --detach`` said "started" (exit 0) once run.json named services and endpoints, before it looked at its
-    launcher's exit: a run that stopped between two of its looks (its services given up on at once, a ``down``) left a
-    run.json that names them too, state ``stopped``, and ``up --detach`` said "started" of a run that was over. It says
-    how the run ended, with its exit code."""
-    from cso_runtime.launcher import _wait_for_detached
+def _a_detached_run_folder(tmp_path: Path, log_text: str):
+    """The lockstep profile and a run folder ``runs/run1`` whose launcher's log holds ``log_text``, for
+    ``_wait_for_detached`` to look at: (profile, data, run_dir, log_path)."""
     from cso_runtime.run_profile import find_profile, load_profile
 
     profile, data = load_profile(str(find_profile("lockstep")), {})
     run_dir = tmp_path / "runs" / "run1"
     (run_dir / "logs").mkdir(parents=True)
     log_path = run_dir / "logs" / "launcher.log"
-    log_path.write_text("the sim service is gone for good: stopping\n")
+    log_path.write_text(log_text)
+    return profile, data, run_dir, log_path
+
+
+def test_up_detach_says_how_a_run_that_stopped_before_it_looked_ended_not_that_it_started(tmp_path):
+    """``up --detach`` said "started" (exit 0) once run.json named services and endpoints, before it looked at its
+    launcher's exit: a run that stopped between two of its looks (its services given up on at once, a ``down``) left a
+    run.json that names them too, state ``stopped``, and ``up --detach`` said "started" of a run that was over. It says
+    how the run ended, with its exit code."""
+    from cso_runtime.launcher import _wait_for_detached
+
+    profile, data, run_dir, log_path = _a_detached_run_folder(tmp_path, "the sim service is gone for good: stopping\n")
     stopped = {
         "run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "state": "stopped",
         "services": {"sim": {"pid": None, "start_ticks": None, "restarts": 3, "gave_up": True}},
         "outcome": "failed", "exit_code": 1, "reason": "gave up on sim: exit code 1",
     }  # fmt: skip
-    (run_dir / "run.json").write_text(json.dumps(stopped))
-    proc = subprocess.Popen([sys.executable, "-c", "raise SystemExit(1)"])  # the launcher, ending the run it stopped
-    try:
-        code, message = _wait_for_detached(proc, profile, data, run_dir, None, False, log_path, 5.0, threading.Event())
-    finally:
-        proc.kill()
-        proc.wait(timeout=30)
+
+    def answer(run: dict, launcher_exit: int) -> tuple[int, str]:
+        """``up --detach``'s answer to ``run`` in run.json, its launcher exiting with ``launcher_exit``."""
+        (run_dir / "run.json").write_text(json.dumps(run))
+        proc = subprocess.Popen([sys.executable, "-c", f"raise SystemExit({launcher_exit})"])  # the launcher, ending the run
+        try:
+            return _wait_for_detached(proc, profile, data, run_dir, None, False, log_path, 5.0, threading.Event())
+        finally:
+            proc.kill()
+            proc.wait(timeout=30)
+
+    code, message = answer(stopped, 1)
     assert code == 1 and message.startswith("run run1 stopped as it started: failed (gave up on sim: exit code 1)"), (code, message)
     assert "the sim service is gone for good" in message and "started (launcher pid" not in message, message
     assert json.loads((run_dir / "run.json").read_text()) == stopped  # its launcher's own account, kept
     # an episode short enough to be over, and done, before the first look (a busy host): exit 0, said ended, not failed
-    done = {**stopped, "outcome": "done", "exit_code": 0, "reason": ""}
-    (run_dir / "run.json").write_text(json.dumps(done))
-    proc = subprocess.Popen([sys.executable, "-c", "raise SystemExit(0)"])
-    try:
-        code, message = _wait_for_detached(proc, profile, data, run_dir, None, False, log_path, 5.0, threading.Event())
-    finally:
-        proc.kill()
-        proc.wait(timeout=30)
+    code, message = answer({**stopped, "outcome": "done", "exit_code": 0, "reason": ""}, 0)
     assert code == 0 and message.startswith("run run1 started and has ended already: done (launcher pid"), (code, message)
 
 
@@ -1521,13 +1527,8 @@ def test_up_detach_reads_run_json_after_its_launchers_exit_not_before(tmp_path):
     (``stopped``, done: a ``down`` of a run whose episode was over) and exited between the two looks was said by its exit
     code alone, "the launcher exited with code 0", exit 1. Its exit is looked at first, then the run.json it left."""
     from cso_runtime.launcher import _wait_for_detached
-    from cso_runtime.run_profile import find_profile, load_profile
 
-    profile, data = load_profile(str(find_profile("lockstep")), {})
-    run_dir = tmp_path / "runs" / "run1"
-    (run_dir / "logs").mkdir(parents=True)
-    log_path = run_dir / "logs" / "launcher.log"
-    log_path.write_text("stopping services\n")
+    profile, data, run_dir, log_path = _a_detached_run_folder(tmp_path, "stopping services\n")
     running = {
         "run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "state": "starting",
         "services": {"sim": {"pid": None, "start_ticks": None, "restarts": 0, "gave_up": False}},
