@@ -329,13 +329,13 @@ def _warn_of_a_watchdog_within_a_step(prof: Profile) -> None:
             typer.echo(f"warning: {said}", err=True)
 
 
-
 def _warn_of_a_start_in_a_wall(prof: Profile) -> None:
     """``up``: say, in the sim service's own words, when the robot overlaps a wall at the scene's start pose (the MuJoCo
     LIMO's box, the 2D simulator's disc: ``Profile.start_overlap_said``), which the sim logs in runs/<run>/logs/sim.log alone; the run goes on as asked."""
     said = prof.start_overlap_said()
     if said is not None:
         typer.echo(f"warning: {said}", err=True)
+
 
 @app.command("eval", rich_help_panel="Evaluation (Table 1)")
 def eval_command(

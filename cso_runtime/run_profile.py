@@ -43,7 +43,7 @@ from cso_runtime.config import (
 )
 from cso_runtime.keys import check_robot_id
 from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, MAX_GRID_CELLS, check_max_grid_cells
-from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, spec_names_a_path, start_overlap_said
+from cso_runtime.scenes import FloorPlan, SceneError, SceneRef, resolve_scenes, spec_names_a_path, start_overlap_said
 from cso_runtime.transport import JOIN_TIMEOUT_S, ZENOH_CONFIG_ENV, TransportConfig, TransportError
 
 
@@ -290,17 +290,26 @@ class Profile:
             raise ConfigError(f"scene {self.scene!r} resolves to no scene")
         return refs[0]
 
+    def scene_plan(self) -> FloorPlan:
+        """The plan of ``scene_ref``, loaded once for ``validate`` and ``start_overlap_said`` (what ``up`` checks before
+        anything starts), again only where ``scene`` or ``m_per_px`` changed since."""
+        key = (self.scene, self.m_per_px)
+        loaded = self.__dict__.get("_scene_plan")
+        if loaded is None or loaded[0] != key:
+            loaded = self.__dict__["_scene_plan"] = (key, self.scene_ref().load())
+        return loaded[1]
+
     def start_overlap_said(self) -> str | None:
         """The simulator's warning of its robot overlapping a wall at the scene's start pose, which its sim service logs
         as it starts, for ``up`` to say before anything starts: the MuJoCo LIMO's box (``scenes.start_overlap_said``,
         ``exploration.robot``'s length and width), the 2D simulator's disc (``simulator.disc_start_overlap_said``,
-        ``exploration.robot.disc_radius_m``); None where there is none, or no simulator (a real robot has no scene). The
-        plan ``validate`` loaded is loaded again: a few ms (a generated middle plan 2 ms, the builtin 7 ms)."""
+        ``exploration.robot.disc_radius_m``); None where there is none, or no simulator (a real robot has no scene), on
+        the plan ``validate`` loaded (``scene_plan``)."""
         simulator = self.simulator()
         if simulator is None:
             return None
         robot = self.exploration_config().robot
-        plan = self.scene_ref().load()
+        plan = self.scene_plan()
         if simulator == "mujoco":
             return start_overlap_said(plan, robot.length_m, robot.width_m)
         from cso_runtime.simulator import WallClearance, disc_start_overlap_said  # noqa: PLC0415 - as simulator_settings
@@ -419,9 +428,9 @@ class Profile:
                 if problem := device_problem(device):
                     raise ConfigError(f"services.policy.device: {problem}; run the policy on cpu")
         try:
-            ref = self.scene_ref()
+            self.scene_ref()  # a spec of no scene, or a bad one, is said with or without a sim
             if "sim" in self.services:
-                ny, nx = ref.load().geometry.shape  # a missing or unusable plan is a bad configuration: say so before anything starts
+                ny, nx = self.scene_plan().geometry.shape  # a missing or unusable plan is a bad configuration: say so before anything starts
                 if ny * nx > self.max_grid_cells:  # every map of the run would be refused (``check_grid_bound``)
                     raise ConfigError(
                         f"scene {self.scene}: its grid is {nx} x {ny} = {ny * nx:_} cells, more than max_grid_cells ({self.max_grid_cells:_}): "

@@ -246,13 +246,6 @@ def client_transport(connect: list[str], zenoh_config_file: str | None = None) -
     return TransportConfig(mode="client", connect=list(connect), zenoh_config_file=zenoh_config_file)
 
 
-def endpoints_from_run_file(runs_dir: Path) -> RunTarget:
-    """Router endpoints, robot and Zenoh config of the current run (``runs/current.json``), if any."""
-    from cso_runtime.current_run import read_current_run  # noqa: PLC0415  (the run file's one reader)
-
-    return endpoints_of_run(read_current_run(runs_dir))
-
-
 def endpoints_of_run(info: dict[str, Any] | None) -> RunTarget:
     """Router endpoints, robot and Zenoh config of a run file read by ``read_current_run`` (None: no run, no endpoints).
 

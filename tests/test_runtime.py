@@ -5129,6 +5129,7 @@ def test_reading_the_run_file_passes_its_zenoh_config_on_and_leaves_the_environm
     sessions of the run's status and map (a config given to this process still comes first), and the environment
     stays as it was."""
     from cso_runtime import status
+    from cso_runtime.current_run import read_current_run
 
     monkeypatch.setenv(ZENOH_CONFIG_ENV, "")  # recorded, so that the teardown removes what a read may have set
     monkeypatch.delenv(ZENOH_CONFIG_ENV)
@@ -5137,7 +5138,7 @@ def test_reading_the_run_file_passes_its_zenoh_config_on_and_leaves_the_environm
     missing = str(tmp_path / "gone.json5")  # a config Zenoh cannot load: status says so and asks no one
     run = {"run_id": "tls", "robot": "r2", "launcher_pid": os.getpid(), "endpoints": ["tls/127.0.0.1:7001"], "zenoh_config": missing}
     (runs / "current.json").write_text(json.dumps(run))
-    assert status.endpoints_from_run_file(runs) == (["tls/127.0.0.1:7001"], "r2", missing)
+    assert status.endpoints_of_run(read_current_run(runs)) == (["tls/127.0.0.1:7001"], "r2", missing)
     assert status.reachable_target([], None, runs) == 2 and "gone.json5" in capsys.readouterr().err
     assert ZENOH_CONFIG_ENV not in os.environ
     from typer.testing import CliRunner
@@ -5159,7 +5160,7 @@ def test_reading_the_run_file_passes_its_zenoh_config_on_and_leaves_the_environm
     assert asked == [str(config)] and ZENOH_CONFIG_ENV not in os.environ
     given = str(tmp_path / "given.json5")
     monkeypatch.setenv(ZENOH_CONFIG_ENV, given)  # --zenoh-config or $CSO_ZENOH_CONFIG: this process's sessions use it
-    assert status.endpoints_from_run_file(runs).zenoh_config_file is None and os.environ[ZENOH_CONFIG_ENV] == given
+    assert status.endpoints_of_run(read_current_run(runs)).zenoh_config_file is None and os.environ[ZENOH_CONFIG_ENV] == given
 
 
 @pytest.mark.parametrize("content", ["[]", '{"run_id": "x", "launcher_pid": "abc"}', '{"run_id": "x", "services": {"sim": {"pid": "1"}}}', "{bad"])
