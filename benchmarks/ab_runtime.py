@@ -8,6 +8,7 @@ the median Zenoh episode, CPU of all processes and wall-time ratio, and how many
 how the A/B tables of docs/experiments/runtime-overhead.md (issue 4) were measured.
 
     python benchmarks/ab_runtime.py BASE_REV NEW_REV [--scene builtin] [--method greedy-dist] [--rounds 6] [--repeats 1] [--json out.json]
+    python benchmarks/ab_runtime.py HEAD HEAD --b-args "--realtime-priority 10"    # one commit, without and with real-time scheduling
 
 A revision may be ``WORKTREE`` for the working tree as it is (uncommitted changes included).
 """
@@ -18,6 +19,7 @@ import argparse
 import json
 import os
 import random
+import shlex
 import statistics
 import subprocess
 import sys
@@ -36,11 +38,12 @@ def checkout(rev: str, into: Path) -> Path:
     return into
 
 
-def bench_once(tree: Path, scene: str, repeats: int, out: Path, method: str = "greedy-dist") -> dict:
-    """One ``bench_runtime.py`` run of ``tree`` (its own code on ``PYTHONPATH``); its ``repeats`` block."""
+def bench_once(tree: Path, scene: str, repeats: int, out: Path, method: str = "greedy-dist", extra: list[str] | None = None) -> dict:
+    """One ``bench_runtime.py`` run of ``tree`` (its own code on ``PYTHONPATH``), with ``extra`` arguments; its
+    ``repeats`` block."""
     env = {**os.environ, "PYTHONPATH": str(tree)}
     env.pop("ZENOH_RUNTIME", None)  # each side applies its own default
-    cmd = [sys.executable, str(tree / "benchmarks" / "bench_runtime.py"), "--scene", scene, "--method", method, "--repeats", str(repeats), "--wall-time-only", "--json", str(out)]
+    cmd = [sys.executable, str(tree / "benchmarks" / "bench_runtime.py"), "--scene", scene, "--method", method, "--repeats", str(repeats), "--wall-time-only", "--json", str(out), *(extra or [])]
     subprocess.run(cmd, cwd=tree, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     return json.loads(out.read_text())["repeats"]
 
@@ -74,8 +77,11 @@ def main() -> int:
     p.add_argument("--method", default="greedy-dist")
     p.add_argument("--rounds", type=int, default=6)
     p.add_argument("--repeats", type=int, default=1, help="Pairs per side per round")
+    p.add_argument("--a-args", default="", help="More bench_runtime.py arguments for side A only (e.g. '--realtime-priority 0')")
+    p.add_argument("--b-args", default="", help="More bench_runtime.py arguments for side B only (e.g. '--realtime-priority 10': the same commit twice, with and without)")
     p.add_argument("--json", type=Path, help="Also write the figures here")
     args = p.parse_args()
+    extra = {"A": shlex.split(args.a_args), "B": shlex.split(args.b_args)}
     with tempfile.TemporaryDirectory(prefix="ab_runtime_") as tmp:
         trees = {}
         try:
@@ -85,7 +91,7 @@ def main() -> int:
             for i in range(args.rounds):
                 order = ("A", "B") if i % 2 == 0 else ("B", "A")
                 for side in order:
-                    results[side].append(bench_once(trees[side], args.scene, args.repeats, Path(tmp) / f"{side}{i}.json", args.method))
+                    results[side].append(bench_once(trees[side], args.scene, args.repeats, Path(tmp) / f"{side}{i}.json", args.method, extra[side]))
                 print(f"round {i + 1}/{args.rounds}: " + ", ".join(f"{s} {statistics.median(results[s][-1]['zenoh_episode_s']):.3f} s" for s in ("A", "B")), flush=True)
         finally:
             for tree in trees.values():
@@ -97,8 +103,8 @@ def main() -> int:
         "method": args.method,
         "rounds": args.rounds,
         "repeats": args.repeats,
-        "A": {"rev": args.base, **summary(results["A"])},
-        "B": {"rev": args.new, **summary(results["B"])},
+        "A": {"rev": args.base, "bench_args": extra["A"], **summary(results["A"])},
+        "B": {"rev": args.new, "bench_args": extra["B"], **summary(results["B"])},
         "rounds_B_shorter": sum(b < a for a, b in per_round),
         "paired_change_pct": paired_change(per_round),
     }

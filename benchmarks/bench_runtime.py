@@ -40,7 +40,7 @@ from cso_runtime.keys import RobotKeys
 from cso_runtime.launcher import Launcher
 from cso_runtime.messages import CmdVelMsg, EpisodeStatusMsg, FrontiersMsg, GoalMsg, MapMsg, ScanMsg, decode
 from cso_runtime.policies import make_policy
-from cso_runtime.processes import keep_freed_memory
+from cso_runtime.processes import keep_freed_memory, use_realtime_priority
 from cso_runtime.run_profile import find_profile, load_profile
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
@@ -171,7 +171,26 @@ def hop_breakdown(trace_dir: Path) -> dict[str, dict[str, float]]:
     return out
 
 
-def in_process(scene: str, method: str, seed: int) -> tuple[float, int, float, float]:
+def in_process(scene: str, method: str, seed: int, realtime_priority: int = 0) -> tuple[float, int, float, float]:
+    """The episode in this process; with ``realtime_priority``, on a thread of its own under SCHED_FIFO at that priority,
+    as the services of the Zenoh side run (the same scheduling on both sides of the ratio)."""
+    if not realtime_priority:
+        return _in_process(scene, method, seed)
+    out: list = []
+
+    def run() -> None:
+        why = use_realtime_priority(realtime_priority)
+        out.append(_in_process(scene, method, seed) if why is None else why)
+
+    worker = threading.Thread(target=run, name="in-process-episode")
+    worker.start()
+    worker.join()
+    if not out or isinstance(out[0], str):
+        raise SystemExit(f"--realtime-priority {realtime_priority}: {out[0] if out else 'the episode failed'}")
+    return out[0]
+
+
+def _in_process(scene: str, method: str, seed: int) -> tuple[float, int, float, float]:
     plan = resolve_scenes(scene)[0].load()
     c0 = time.process_time()
     t0 = time.perf_counter()
@@ -181,7 +200,7 @@ def in_process(scene: str, method: str, seed: int) -> tuple[float, int, float, f
 
 
 def through_zenoh(
-    scene: str, method: str, seed: int, service_mode: str | None = None, wall_time_only: bool = False, trace: bool = False, foxglove: bool = False
+    scene: str, method: str, seed: int, service_mode: str | None = None, wall_time_only: bool = False, trace: bool = False, foxglove: bool = False, realtime_priority: int = 0
 ) -> dict:
     port = free_tcp_port()
     overrides = {"scene": scene, "method": method, "seed": seed, "lockstep": True}
@@ -190,6 +209,7 @@ def through_zenoh(
     profile.router.listen = [loopback_endpoint(port)]
     profile.router.service_mode = service_mode or profile.router.service_mode
     data["router"] = {"listen": [loopback_endpoint(port)], "service_mode": profile.router.service_mode}
+    profile.realtime_priority = data["realtime_priority"] = realtime_priority
     stamps: dict[str, dict[int, float]] = {"scan": {}, "map": {}, "frontiers": {}, "goal": {}, "cmd_vel": {}, "decide": {}}
     done = threading.Event()
     started = threading.Event()
@@ -298,6 +318,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--trace", action="store_true", help="Services trace every message (CSO_TRACE_DIR): adds each hop's transit, queue+decode and work")
     p.add_argument("--foxglove", action="store_true", help="Add the foxglove_bridge service (up --foxglove) to the Zenoh episodes: what watching costs")
+    p.add_argument(
+        "--realtime-priority",
+        type=int,
+        default=None,
+        help="The services' realtime_priority (SCHED_FIFO 1-99; 0: normal scheduling), and the in-process episode's thread's; default: the lockstep profile's (0)",
+    )
     p.add_argument("--json", type=Path, default=None, help="Also write the figures here")
     args = p.parse_args(argv)
     import logging  # noqa: PLC0415  (configured only when run as a script, not when imported)
@@ -305,10 +331,11 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING)
     pairs = []
     keep_freed_memory()  # the allocator settings of the services, for the in-process side too (same rules)
-    in_process(args.scene, args.method, args.seed)  # warm-up, not counted: the first episode of a process pays imports and caches
+    rt = args.realtime_priority if args.realtime_priority is not None else load_profile(str(find_profile("lockstep")), {})[0].realtime_priority
+    in_process(args.scene, args.method, args.seed, rt)  # warm-up, not counted: the first episode of a process pays imports and caches
     for _ in range(args.repeats):  # interleaved, so both sides of each ratio see the same machine
-        local = in_process(args.scene, args.method, args.seed)
-        pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode, args.wall_time_only, args.trace, args.foxglove)))
+        local = in_process(args.scene, args.method, args.seed, rt)
+        pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode, args.wall_time_only, args.trace, args.foxglove, rt)))
     (local_s, local_steps, local_cov, local_cpu_s), z = pairs[-1]
     ratios = [zz["episode_s"] / ll[0] for ll, zz in pairs]
     cores = len(os.sched_getaffinity(0))
@@ -319,6 +346,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed": args.seed,
         "service_mode": z["service_mode"],
         "foxglove_bridge": args.foxglove,
+        "realtime_priority": rt,
         "in_process": {"episode_s": local_s, "cpu_s": local_cpu_s, "steps": local_steps, "coverage_pct": local_cov},
         "zenoh_lockstep": z,
         "wall_time_ratio": z["episode_s"] / local_s,

@@ -337,6 +337,17 @@ def _warn_of_a_start_in_a_wall(prof: Profile) -> None:
         typer.echo(f"warning: {said}", err=True)
 
 
+def _warn_of_realtime_not_permitted(prof: Profile) -> None:
+    """``up``: say when the profile's ``realtime_priority`` cannot be set here (no CAP_SYS_NICE, no ``rtprio`` limit: its
+    services would each say so in their logs alone); the run goes on with normal scheduling."""
+    if prof.realtime_priority:
+        from cso_runtime.processes import REALTIME_HOWTO, realtime_refusal  # noqa: PLC0415
+
+        why = realtime_refusal(prof.realtime_priority)
+        if why is not None:
+            typer.echo(f"warning: realtime_priority {prof.realtime_priority}: {why}; the services run with normal scheduling ({REALTIME_HOWTO})", err=True)
+
+
 @app.command("eval", rich_help_panel="Evaluation (Table 1)")
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", autocompletion=_complete_method_list, help=METHODS_HELP),
@@ -1001,6 +1012,7 @@ def up_command(
             _warn_of_unfed_inputs(prof)
             _warn_of_a_watchdog_within_a_step(prof)
             _warn_of_a_start_in_a_wall(prof)
+            _warn_of_realtime_not_permitted(prof)
             checks_folders = dry_run or not resolved  # --resolved alone: the profile to run later, wherever it will write
             if record_out is not None and checks_folders:
                 from cso_runtime.recording import names_a_folder  # noqa: PLC0415

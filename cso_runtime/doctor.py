@@ -314,6 +314,16 @@ def check_runs_folder(runs_dir: Path) -> str:
     return f"{runs_dir} will be made in {parent} (writable)"
 
 
+def check_realtime() -> str:
+    """Whether a profile's ``realtime_priority`` can be set here (an option: not permitted is said, not failed)."""
+    from cso_runtime.processes import REALTIME_HOWTO, realtime_refusal  # noqa: PLC0415
+
+    why = realtime_refusal(1)
+    if why is None:
+        return "permitted: a profile's realtime_priority runs its services under SCHED_FIFO"
+    return f"{why}: a profile's realtime_priority would run with normal scheduling (optional; {REALTIME_HOWTO})"
+
+
 def checks(runs_dir: Path) -> list[tuple[str, Callable[[], str]]]:
     """``doctor``'s checks in the order it runs them, as (name, check); a check returns what it found or raises."""
     return [
@@ -324,6 +334,7 @@ def checks(runs_dir: Path) -> list[tuple[str, Callable[[], str]]]:
         ("foxglove bridge", check_foxglove),
         ("weights", check_weights),
         ("profiles", check_profiles),
+        ("real-time scheduling", check_realtime),
         ("runs folder", lambda: check_runs_folder(runs_dir)),
     ]
 

@@ -162,6 +162,50 @@ def signal_on_parent_death(sig: int) -> bool:
     return True
 
 
+REALTIME_PRIORITY_MAX = 99
+"""The highest SCHED_FIFO priority Linux gives (``realtime_priority`` is 1 to this, 0 for none)."""
+
+REALTIME_HOWTO = "docs/runtime.md#real-time-scheduling"
+"""Where a user reads how to permit real-time scheduling (an ``rtprio`` limit, or CAP_SYS_NICE in a container)."""
+
+
+def use_realtime_priority(priority: int) -> str | None:
+    """Run the calling thread under SCHED_FIFO at ``priority`` (1 to 99), as ros2_control's controller manager runs its
+    loop. The threads and processes it starts from then on inherit it (Zenoh's, a frontier service's layer helper), so
+    a service calls it before it opens its Zenoh session. None once it is set; else why not (not permitted: it needs
+    CAP_SYS_NICE or an ``rtprio`` limit; not Linux), and the thread keeps its scheduling.
+
+    Why: on a busy 2-vCPU host the default scheduler leaves a service woken by a message queued behind another on one
+    vCPU while the other idles, for a millisecond or more (BENCHMARKS.md, issue 4); a real-time thread is placed on an
+    idle vCPU at once."""
+    if not 1 <= priority <= REALTIME_PRIORITY_MAX:
+        raise ValueError(f"realtime_priority must be 0 (none) or 1 to {REALTIME_PRIORITY_MAX}; got {priority}")
+    if not hasattr(os, "sched_setscheduler") or not sys.platform.startswith("linux"):
+        return "this system has no SCHED_FIFO for it (Linux only)"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError:
+        import resource  # noqa: PLC0415 - Unix only, and only here
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_RTPRIO)
+        limit = "unlimited" if soft == resource.RLIM_INFINITY else str(soft)
+        return f"not permitted here (it needs CAP_SYS_NICE, or an rtprio limit of at least {priority}: this user's is {limit})"
+    except OSError as exc:  # EINVAL, ESRCH: no reason to expect them, said all the same
+        return f"refused ({exc.strerror or exc})"
+    return None
+
+
+def realtime_refusal(priority: int) -> str | None:
+    """What ``use_realtime_priority(priority)`` says in a process this one starts (None: it would be set), tried on a
+    thread of its own that then ends, so that the caller's own scheduling is left as it is (``up`` says it before any
+    service starts; ``doctor``)."""
+    said: list[str | None] = []
+    probe = threading.Thread(target=lambda: said.append(use_realtime_priority(priority)), name="realtime-probe", daemon=True)
+    probe.start()
+    probe.join()
+    return said[0] if said else "the check could not run"
+
+
 def _exit_with_parent(parent_pid: int, period_s: float) -> None:
     while True:
         time.sleep(period_s)

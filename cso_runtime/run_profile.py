@@ -43,6 +43,7 @@ from cso_runtime.config import (
 )
 from cso_runtime.keys import check_robot_id
 from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, MAX_GRID_CELLS, check_max_grid_cells
+from cso_runtime.processes import REALTIME_PRIORITY_MAX
 from cso_runtime.scenes import FloorPlan, SceneError, SceneRef, resolve_scenes, spec_names_a_path, start_overlap_said
 from cso_runtime.transport import JOIN_TIMEOUT_S, ZENOH_CONFIG_ENV, TransportConfig, TransportError
 
@@ -151,6 +152,10 @@ def referee_kind(services: Any) -> str:
     return next((name for name in REFEREES if name in services), OWN_REFEREE)
 
 
+REALTIME_PRIORITY_BOUND = Bound(0, REALTIME_PRIORITY_MAX, why="0: normal scheduling; 1 to 99: SCHED_FIFO's priorities")
+"""``Profile.realtime_priority``'s range, checked by ``up`` and by a service started by hand alike."""
+
+
 @dataclass
 class Profile:
     """One runtime configuration: what to explore, with which services and parameters."""
@@ -184,6 +189,12 @@ class Profile:
     progress_log_s: float = 10.0
     """Without the live view on a terminal (``--no-live``, ``--detach``, output into a file) the launcher logs a
     line of the episode's progress this often, in seconds (0: never), so a log being followed is never silent."""
+    realtime_priority: int = 0
+    """The SCHED_FIFO priority (1-99) every service of the run sets on itself as it starts, its Zenoh threads and
+    helper processes included (``processes.use_realtime_priority``), as ROS 2 real-time nodes do; 0 (the default): the
+    system's normal scheduling. It needs CAP_SYS_NICE or an ``rtprio`` limit (docs/runtime.md, Real-time scheduling);
+    where it is not permitted, ``up`` says so and the services run with normal scheduling. On a loaded host it cuts the
+    time a service woken by its input waits for a CPU (BENCHMARKS.md, issue 4). Not applied to command nodes."""
     max_grid_cells: int = DEFAULT_MAX_GRID_CELLS
     """The most cells a map grid of this run may have (``messages.DEFAULT_MAX_GRID_CELLS``, 4,000,000: a 100 m x 100 m
     arena at 0.05 m): every process of the run refuses a message with a larger grid before inflating any of it, so a
@@ -336,6 +347,7 @@ class Profile:
         check_robot_id(self.robot)
         check_seed(self.seed)
         check_bounds("", self, seconds("progress_log_s"))
+        check_bounds("", self, {"realtime_priority": REALTIME_PRIORITY_BOUND})
         self.exploration_config()
         from services import SERVICE_NAMES, check_profile_service  # noqa: PLC0415 - services import zenoh
         if not self.services:

@@ -32,7 +32,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, NoReturn, TypeVar
@@ -73,13 +73,15 @@ from cso_runtime.processes import (
     INCARNATION_ENV,
     PARENT_CHECK_PERIOD_S,
     PARENT_PID_ENV,
+    REALTIME_HOWTO,
     dump_stacks_on_signal,
     keep_freed_memory,
     launcher_gone,
     set_from_signal_handler,
     signal_on_parent_death,
+    use_realtime_priority,
 )
-from cso_runtime.run_profile import Profile, profile_exploration_config, unknown_top_level_keys
+from cso_runtime.run_profile import REALTIME_PRIORITY_BOUND, Profile, profile_exploration_config, unknown_top_level_keys
 from cso_runtime.transport import STOPPED, TransportConfig, TransportError, guarded_callback, open_session
 
 log = logging.getLogger("cso.service")
@@ -1149,6 +1151,21 @@ def exit_now(code: int) -> NoReturn:
         os._exit(code)
 
 
+def use_profile_realtime_priority(name: str, profile: Mapping[str, Any]) -> bool:
+    """The profile's ``realtime_priority`` (``Profile``) set on this service's thread (``processes.use_realtime_priority``),
+    said in its log either way: True once set; False where the profile asks for none, or where it is not permitted here
+    (the service then runs with normal scheduling, as ``up`` said before it started it)."""
+    priority = int(profile.get("realtime_priority") or 0)
+    if not priority:
+        return False
+    why = use_realtime_priority(priority)
+    if why is None:
+        log.info("%s: real-time scheduling, SCHED_FIFO priority %d (realtime_priority)", name, priority)
+        return True
+    log.warning("%s: realtime_priority %d: %s; running with normal scheduling (%s)", name, priority, why, REALTIME_HOWTO)
+    return False
+
+
 def _service_main(cls: type[Service], argv: list[str] | None, prog: str | None) -> int:
     """``service_main``'s run: the service's exit code."""
     args = parse_args(cls.name, argv, cls, prog)
@@ -1163,6 +1180,7 @@ def _service_main(cls: type[Service], argv: list[str] | None, prog: str | None) 
         profile, exploration, params = load_profile_for_service(args.config, cls.name, cls)
         set_max_grid_cells(profile.get("max_grid_cells", DEFAULT_MAX_GRID_CELLS))  # before any message is decoded
         check_seed(profile.get("seed", 0))  # as `up` checks it: the services read it with int(), which took 1e400 or [1] badly
+        REALTIME_PRIORITY_BOUND.check("realtime_priority", profile.get("realtime_priority") or 0)
         params = cls.apply_arguments(args, dict(params))
         transport = TransportConfig(mode=args.mode, connect=list(args.connect), listen=list(args.listen))
         router = r if isinstance(r := profile.get("router"), dict) else {}
@@ -1179,6 +1197,7 @@ def _service_main(cls: type[Service], argv: list[str] | None, prog: str | None) 
     _install_stop_handlers(stop, service)
     _die_with_launcher(cls.name, stop)
     keep_freed_memory()
+    use_profile_realtime_priority(cls.name, profile)  # before the session opens: its threads, and the helpers, inherit it
     trace_dir = os.environ.get(TRACE_DIR_ENV)
     if trace_dir:
         service.trace = MessageTrace(Path(trace_dir) / f"{cls.name}.trace.json")

@@ -21,7 +21,7 @@ def test_doctor_passes_every_check_on_a_working_install(tmp_path):
     r = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "doctor", "--json"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     results = {c["check"]: c for c in json.loads(r.stdout)}
-    assert list(results) == ["python", "libraries", "zenoh loopback", "mujoco LIMO", "foxglove bridge", "weights", "profiles", "runs folder"]
+    assert list(results) == ["python", "libraries", "zenoh loopback", "mujoco LIMO", "foxglove bridge", "weights", "profiles", "real-time scheduling", "runs folder"]
     assert re.fullmatch(r"a Foxglove WebSocket server answered on 127\.0\.0\.1:[1-9]\d*", results["foxglove bridge"]["detail"])  # the test extra has it
     assert all(c["ok"] for c in results.values()), results
     assert "eclipse-zenoh" in results["libraries"]["detail"] and "torch 2." in results["libraries"]["detail"]
@@ -29,6 +29,11 @@ def test_doctor_passes_every_check_on_a_working_install(tmp_path):
     assert "no viewer window here" in results["mujoco LIMO"]["detail"] or "a viewer window can open here" in results["mujoco LIMO"]["detail"]
     assert "cso.pt" in results["weights"]["detail"] and "sim" in results["profiles"]["detail"]
     assert "will be made in" in results["runs folder"]["detail"] and not (tmp_path / "runs").exists()
+    from cso_runtime.processes import realtime_refusal
+
+    refusal = realtime_refusal(1)  # an option: said either way, not failed
+    realtime = results["real-time scheduling"]["detail"]
+    assert realtime == "permitted: a profile's realtime_priority runs its services under SCHED_FIFO" if refusal is None else realtime.startswith(refusal)
 
 
 def test_a_failing_check_says_why_and_the_others_still_run(tmp_path, monkeypatch):

@@ -271,3 +271,64 @@ def test_a_command_started_under_nohup_keeps_sighup_ignored():
     finally:
         for sig, handler in saved.items():
             signal.signal(sig, handler)
+
+
+REALTIME_CHILD = """
+import json, os, sys, threading
+from cso_runtime.processes import use_realtime_priority
+
+said = use_realtime_priority(3)
+policy = lambda: [os.sched_getscheduler(0), os.sched_getparam(0).sched_priority]
+seen = {"said": said, "thread": policy()}
+in_thread = []
+t = threading.Thread(target=lambda: in_thread.append(policy()))
+t.start()
+t.join()
+seen["new_thread"] = in_thread[0]
+r, w = os.pipe()
+pid = os.fork()
+if pid == 0:
+    os.write(w, json.dumps(policy()).encode())
+    os._exit(0)
+os.waitpid(pid, 0)
+seen["child"] = json.loads(os.read(r, 100))
+print(json.dumps(seen))
+"""
+
+
+def test_a_realtime_priority_is_set_on_the_thread_and_inherited_by_what_it_starts_or_said_why_not():
+    """``use_realtime_priority``: SCHED_FIFO at the priority on the calling thread, inherited by the threads and processes it
+    starts after (a service's Zenoh threads, the frontier service's layer helper); where the machine does not permit it
+    (``realtime_refusal`` asks on a thread of its own, as ``up`` does), why, and the normal scheduling left as it was."""
+    import json
+
+    from cso_runtime.processes import realtime_refusal
+
+    before = os.sched_getscheduler(0)
+    refusal = realtime_refusal(3)
+    assert os.sched_getscheduler(0) == before  # the probe's thread ended; this one is as it was
+    out = subprocess.run([sys.executable, "-c", REALTIME_CHILD], capture_output=True, text=True, timeout=60, cwd=Path(__file__).resolve().parents[1])
+    assert out.returncode == 0, out.stderr
+    seen = json.loads(out.stdout)
+    assert seen["said"] == refusal
+    expected = [os.SCHED_OTHER, 0] if refusal is not None else [os.SCHED_FIFO, 3]
+    assert seen["thread"] == seen["new_thread"] == seen["child"] == expected
+    if refusal is not None:
+        assert refusal.startswith("not permitted here (it needs CAP_SYS_NICE, or an rtprio limit of at least 3")
+
+
+def test_a_realtime_priority_not_permitted_says_the_limit_and_one_out_of_range_is_refused(monkeypatch):
+    import resource
+
+    from cso_runtime import processes
+
+    def refuse(*_args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(processes.os, "sched_setscheduler", refuse)
+    monkeypatch.setattr(resource, "getrlimit", lambda _which: (5, 5))
+    assert processes.use_realtime_priority(10) == "not permitted here (it needs CAP_SYS_NICE, or an rtprio limit of at least 10: this user's is 5)"
+    assert processes.realtime_refusal(10) == processes.use_realtime_priority(10)
+    for bad in (0, -1, 100):
+        with pytest.raises(ValueError, match=f"realtime_priority must be 0 \\(none\\) or 1 to 99; got {bad}"):
+            processes.use_realtime_priority(bad)

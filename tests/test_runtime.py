@@ -567,6 +567,80 @@ def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file
     assert "warp_speed" in usage_error("up", "--profile", "lockstep", "--set", "services.sim.warp_speed=9", "--no-live") and not (tmp_path / "runs").exists()
 
 
+def test_a_realtime_priority_out_of_range_or_not_an_integer_is_refused_before_anything_starts(tmp_path):
+    from cso_runtime.config import ConfigError
+    from cso_runtime.run_profile import load_profile
+
+    for bad in (-1, 100):
+        with pytest.raises(ConfigError, match=re.escape(f"realtime_priority must be in [0, 99] (0: normal scheduling; 1 to 99: SCHED_FIFO's priorities), got {bad}")):
+            load_profile("lockstep", {}, settings={"realtime_priority": bad})
+    with pytest.raises(ConfigError, match="realtime_priority: expected an integer, got 'high'"):
+        load_profile("lockstep", {}, settings={"realtime_priority": "high"})
+    assert load_profile("lockstep", {})[0].realtime_priority == 0  # the shipped profiles leave the normal scheduling
+    said = usage_error("up", "--profile", "lockstep", "--set", "realtime_priority=100", "--no-live")
+    assert "realtime_priority must be in [0, 99]" in said and not (tmp_path / "runs").exists()
+
+
+def zenoh_threads_and_main(pid: int) -> dict[int, str]:
+    """Thread id -> name of a process's main thread and its Zenoh threads (Zenoh's runtime names them ``rx-N``, ``tx-N``
+    and the like; ``app-N`` with more than one worker)."""
+    threads = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        name = (task / "comm").read_text().strip()
+        if int(task.name) == pid or re.fullmatch(r"(rx|tx|app|net|acc)-\d+", name):
+            threads[int(task.name)] = name
+    return threads
+
+
+def test_up_with_a_realtime_priority_runs_its_services_under_sched_fifo_or_says_why_not_and_the_episode_is_the_same(tmp_path):
+    """``realtime_priority``: every service sets SCHED_FIFO on itself before its Zenoh session opens, so its main thread,
+    its Zenoh threads and the frontier service's layer helper run under it, and the episode is step for step the
+    in-process one. Where the machine does not permit it (no CAP_SYS_NICE, no rtprio limit), ``up`` says so once before
+    anything starts, each service's log says so, and they run with normal scheduling."""
+    from cso_runtime.processes import realtime_refusal
+
+    refusal = realtime_refusal(7)
+    expected_policy = (os.SCHED_FIFO, 7) if refusal is None else (os.SCHED_OTHER, 0)
+    said = "real-time scheduling, SCHED_FIFO priority 7 (realtime_priority)" if refusal is None else f"realtime_priority 7: {refusal}; running with normal scheduling"
+    profile = write_profile(tmp_path, SCENE, "greedy-dist", min_step_period_s=0.1)  # its processes live long enough to be looked at
+    runs = tmp_path / "runs"
+    up = subprocess.Popen(
+        [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs), "--set", "realtime_priority=7"],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        info = wait_for(lambda: current_run_with_services(runs, 5), HANG_DEADLINE_S, "the run's five services")
+        logs = next(runs.glob("*/logs"))
+        names = ("sim", "mapper", "frontier", "policy", "planner")
+
+        def read(name: str) -> str:
+            return (logs / f"{name}.log").read_text() if (logs / f"{name}.log").exists() else ""
+
+        wait_for(lambda: all(said in read(n) for n in names) and "frontier layer helper ready" in read("frontier"), HANG_DEADLINE_S, "each service's word on its scheduling")
+        for name in names:
+            pid = info["services"][name]["pid"]
+            threads = zenoh_threads_and_main(pid)
+            assert any(n.startswith("rx-") for n in threads.values()), (name, threads)
+            for tid, thread in threads.items():
+                assert (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority) == expected_policy, (name, thread)
+        frontier = info["services"]["frontier"]["pid"]
+        children = [int(c) for c in Path(f"/proc/{frontier}/task/{frontier}/children").read_text().split()]
+        assert any(b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes() for c in children), children  # the layer helper
+        for child in children:  # and multiprocessing's resource tracker
+            assert (os.sched_getscheduler(child), os.sched_getparam(child).sched_priority) == expected_policy
+        _, err = up.communicate(timeout=120)
+        assert up.returncode == 0, err[-3000:]
+        assert err.count("warning: realtime_priority 7") == (0 if refusal is None else 1)
+        (summary,) = [json.loads(p.read_text()) for p in runs.glob("*/summary.json")]
+        expected = in_process_result(SCENE, "greedy-dist")
+        ran = summary["methods"]["greedy-dist"]
+        assert ran["steps"] == expected.steps and abs(ran["coverage_pct"] - expected.coverage_pct) < 1e-3
+    finally:
+        up.kill()
+        up.communicate()
+        kill_leftovers(runs)
+
+
 def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_running(tmp_path, capsys):
     from cso_runtime.config import ConfigError
     from cso_runtime.run_profile import load_profile
