@@ -225,6 +225,9 @@ class Service:
         self.cache_unanswered = 0
         """Restores at start (``restore_from_cache``) that got no answer from the referee's cache in time, the service
         started afresh: counted as the status's ``cache_unanswered`` (told apart from a cache with nothing kept)."""
+        self.realtime_priority = 0
+        """The SCHED_FIFO priority this process runs under (the profile's ``realtime_priority``, set as it started:
+        ``use_profile_realtime_priority``); 0: the normal scheduling. The status's ``realtime_priority`` count."""
         self.step_guard = StepGuard()
         self.last_step = 0
         self._state_and_reason = ("running", "")
@@ -460,6 +463,8 @@ class Service:
             counters["callback_errors"] = errors
         if unanswered:
             counters["cache_unanswered"] = unanswered
+        if self.realtime_priority:
+            counters["realtime_priority"] = self.realtime_priority
         state, reason = self._state_and_reason  # read once: the pair set together
         # Clipped to what the schema takes: a longer reason (a policy server's, naming each of its stale robots) made the
         # whole status undecodable, and `status` showed the service as not answering.
@@ -1151,19 +1156,19 @@ def exit_now(code: int) -> NoReturn:
         os._exit(code)
 
 
-def use_profile_realtime_priority(name: str, profile: Mapping[str, Any]) -> bool:
+def use_profile_realtime_priority(name: str, profile: Mapping[str, Any]) -> int:
     """The profile's ``realtime_priority`` (``Profile``) set on this service's thread (``processes.use_realtime_priority``),
-    said in its log either way: True once set; False where the profile asks for none, or where it is not permitted here
-    (the service then runs with normal scheduling, as ``up`` said before it started it)."""
+    said in its log either way: the priority once set; 0 where the profile asks for none, or where it is not permitted
+    here (the service then runs with normal scheduling, as ``up`` said before it started it)."""
     priority = int(profile.get("realtime_priority") or 0)
     if not priority:
-        return False
+        return 0
     why = use_realtime_priority(priority)
     if why is None:
         log.info("%s: real-time scheduling, SCHED_FIFO priority %d (realtime_priority)", name, priority)
-        return True
+        return priority
     log.warning("%s: realtime_priority %d: %s; running with normal scheduling (%s)", name, priority, why, REALTIME_HOWTO)
-    return False
+    return 0
 
 
 def _service_main(cls: type[Service], argv: list[str] | None, prog: str | None) -> int:
@@ -1197,7 +1202,7 @@ def _service_main(cls: type[Service], argv: list[str] | None, prog: str | None) 
     _install_stop_handlers(stop, service)
     _die_with_launcher(cls.name, stop)
     keep_freed_memory()
-    use_profile_realtime_priority(cls.name, profile)  # before the session opens: its threads, and the helpers, inherit it
+    service.realtime_priority = use_profile_realtime_priority(cls.name, profile)  # before the session opens: its threads, and helpers, inherit it
     trace_dir = os.environ.get(TRACE_DIR_ENV)
     if trace_dir:
         service.trace = MessageTrace(Path(trace_dir) / f"{cls.name}.trace.json")

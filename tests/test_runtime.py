@@ -602,7 +602,7 @@ def test_up_with_a_realtime_priority_runs_its_services_under_sched_fifo_or_says_
     refusal = realtime_refusal(7)
     expected_policy = (os.SCHED_FIFO, 7) if refusal is None else (os.SCHED_OTHER, 0)
     said = "real-time scheduling, SCHED_FIFO priority 7 (realtime_priority)" if refusal is None else f"realtime_priority 7: {refusal}; running with normal scheduling"
-    profile = write_profile(tmp_path, SCENE, "greedy-dist", min_step_period_s=0.1)  # its processes live long enough to be looked at
+    profile = write_profile(tmp_path, SCENE, "greedy-dist", min_step_period_s=0.25)  # 9 s: its processes live long enough to be looked at
     runs = tmp_path / "runs"
     up = subprocess.Popen(
         [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs), "--set", "realtime_priority=7"],
@@ -623,6 +623,13 @@ def test_up_with_a_realtime_priority_runs_its_services_under_sched_fifo_or_says_
             assert any(n.startswith("rx-") for n in threads.values()), (name, threads)
             for tid, thread in threads.items():
                 assert (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority) == expected_policy, (name, thread)
+        def answered() -> dict | None:
+            st = query_status(info["endpoints"])
+            return st if st is not None and all("counters" in st["services"].get(n, {}) for n in names) else None
+
+        status = wait_for(answered, HANG_DEADLINE_S, "every service's status")
+        for name in names:  # `status` shows it under each service's counts
+            assert status["services"][name]["counters"].get("realtime_priority", 0) == (7 if refusal is None else 0), (name, status["services"][name])
         frontier = info["services"]["frontier"]["pid"]
         children = [int(c) for c in Path(f"/proc/{frontier}/task/{frontier}/children").read_text().split()]
         assert any(b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes() for c in children), children  # the layer helper
