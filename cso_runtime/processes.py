@@ -169,11 +169,11 @@ REALTIME_HOWTO = "docs/runtime.md#real-time-scheduling"
 """Where a user reads how to permit real-time scheduling (an ``rtprio`` limit, or CAP_SYS_NICE in a container)."""
 
 
-def use_realtime_priority(priority: int) -> str | None:
+def use_realtime_priority(priority: int, processes: Sequence[int] = ()) -> str | None:
     """Run the calling thread under SCHED_FIFO at ``priority`` (1 to 99), as ros2_control's controller manager runs its
-    loop. The threads and processes it starts from then on inherit it (Zenoh's, a frontier service's layer helper), so
-    a service calls it before it opens its Zenoh session. None once it is set; else why not (not permitted: it needs
-    CAP_SYS_NICE or an ``rtprio`` limit; not Linux), and the thread keeps its scheduling.
+    loop, and then every other thread of ``processes`` (process ids: this one's, ``os.getpid()``, a service's helper
+    processes). The threads and processes they start from then on inherit it. None once the calling thread's is set;
+    else why not (not permitted: it needs CAP_SYS_NICE or an ``rtprio`` limit; not Linux), and nothing is changed.
 
     Why: on a busy 2-vCPU host the default scheduler leaves a service woken by a message queued behind another on one
     vCPU while the other idles, for a millisecond or more (BENCHMARKS.md, issue 4); a real-time thread is placed on an
@@ -182,8 +182,9 @@ def use_realtime_priority(priority: int) -> str | None:
         raise ValueError(f"realtime_priority must be 0 (none) or 1 to {REALTIME_PRIORITY_MAX}; got {priority}")
     if not hasattr(os, "sched_setscheduler") or not sys.platform.startswith("linux"):
         return "this system has no SCHED_FIFO for it (Linux only)"
+    param = os.sched_param(priority)
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(0, os.SCHED_FIFO, param)
     except PermissionError:
         import resource  # noqa: PLC0415 - Unix only, and only here
 
@@ -192,7 +193,19 @@ def use_realtime_priority(priority: int) -> str | None:
         return f"not permitted here (it needs CAP_SYS_NICE, or an rtprio limit of at least {priority}: this user's is {limit})"
     except OSError as exc:  # EINVAL, ESRCH: no reason to expect them, said all the same
         return f"refused ({exc.strerror or exc})"
+    for pid in processes:
+        for tid in _threads_of(pid):
+            with contextlib.suppress(OSError):  # a thread (or process) that ended meanwhile
+                os.sched_setscheduler(tid, os.SCHED_FIFO, param)
     return None
+
+
+def _threads_of(pid: int) -> list[int]:
+    """The thread ids of process ``pid`` (Linux /proc); none for one that has ended."""
+    try:
+        return [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+    except OSError:
+        return []
 
 
 def realtime_refusal(priority: int) -> str | None:

@@ -190,8 +190,8 @@ class Profile:
     """Without the live view on a terminal (``--no-live``, ``--detach``, output into a file) the launcher logs a
     line of the episode's progress this often, in seconds (0: never), so a log being followed is never silent."""
     realtime_priority: int = 0
-    """The SCHED_FIFO priority (1-99) every service of the run sets on itself as it starts, its Zenoh threads and
-    helper processes included (``processes.use_realtime_priority``), as ROS 2 real-time nodes do; 0 (the default): the
+    """The SCHED_FIFO priority (1-99) every service of the run sets on itself once it has warmed up, its Zenoh threads
+    and helper processes included (``processes.use_realtime_priority``), as ROS 2 real-time nodes do; 0 (the default): the
     system's normal scheduling. It needs CAP_SYS_NICE or an ``rtprio`` limit (docs/runtime.md, Real-time scheduling);
     where it is not permitted, ``up`` says so and the services run with normal scheduling. On a loaded host it cuts the
     time a service woken by its input waits for a CPU (BENCHMARKS.md, issue 4). Not applied to command nodes."""

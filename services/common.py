@@ -32,7 +32,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, NoReturn, TypeVar
@@ -256,6 +256,11 @@ class Service:
         return self.stop_signal is not None or (self.stop_event is not None and self.stop_event.is_set())
 
     # --- hooks -----------------------------------------------------------------------------------
+    def helper_pids(self) -> list[int]:
+        """The processes of its own this service runs its work in (the frontier service's layer helper): they get the
+        service's scheduling (``use_profile_realtime_priority``). None by default."""
+        return []
+
     def warm_up(self) -> None:
         """Called once the session is open, before the liveliness token says the service is up: pay
         one-off costs here (a helper process's start, a traced network, first calls of the algorithms
@@ -789,6 +794,7 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
             log.info("%s: warmed up in %.0f ms", service.name, (time.perf_counter() - t0) * 1e3)
         except Exception:  # only a speed-up: the first step pays the one-off costs instead
             log.exception("%s: warm-up failed after %.0f ms; starting without it", service.name, (time.perf_counter() - t0) * 1e3)
+        service.realtime_priority = use_profile_realtime_priority(service)  # Zenoh's threads and the helpers too
         own = own_incarnation_token(session, ctx.keys, service.name)  # first: its launcher's sign that this process is up
         token = session.liveliness().declare_token(ctx.keys.alive(service.name))
         log.info("%s: up for robot %s (inputs: %s)", service.name, sub_robot, ", ".join(service.inputs) or "none")
@@ -1156,14 +1162,17 @@ def exit_now(code: int) -> NoReturn:
         os._exit(code)
 
 
-def use_profile_realtime_priority(name: str, profile: Mapping[str, Any]) -> int:
-    """The profile's ``realtime_priority`` (``Profile``) set on this service's thread (``processes.use_realtime_priority``),
-    said in its log either way: the priority once set; 0 where the profile asks for none, or where it is not permitted
-    here (the service then runs with normal scheduling, as ``up`` said before it started it)."""
-    priority = int(profile.get("realtime_priority") or 0)
+def use_profile_realtime_priority(service: Service) -> int:
+    """The profile's ``realtime_priority`` (``Profile``) set on every thread of this service's process and of its helper
+    processes (``processes.use_realtime_priority``, ``Service.helper_pids``), said in its log either way: the priority
+    once set; 0 where the profile asks for none, or where it is not permitted here (the service then runs with normal
+    scheduling, as ``up`` said before it started it). Called once the service has warmed up, before it says it is up:
+    a warm-up (imports, a first decision) under real-time scheduling would take the CPUs from everything else for a
+    second or more."""
+    name, priority = service.name, int(service.ctx.profile.get("realtime_priority") or 0)
     if not priority:
         return 0
-    why = use_realtime_priority(priority)
+    why = use_realtime_priority(priority, [os.getpid(), *service.helper_pids()])
     if why is None:
         log.info("%s: real-time scheduling, SCHED_FIFO priority %d (realtime_priority)", name, priority)
         return priority
@@ -1202,7 +1211,6 @@ def _service_main(cls: type[Service], argv: list[str] | None, prog: str | None) 
     _install_stop_handlers(stop, service)
     _die_with_launcher(cls.name, stop)
     keep_freed_memory()
-    service.realtime_priority = use_profile_realtime_priority(cls.name, profile)  # before the session opens: its threads, and helpers, inherit it
     trace_dir = os.environ.get(TRACE_DIR_ENV)
     if trace_dir:
         service.trace = MessageTrace(Path(trace_dir) / f"{cls.name}.trace.json")

@@ -280,6 +280,11 @@ class FrontierService(Service):
             log.info("frontier layers: %d by the helper process, %d here%s%s", by_helpers, self.decisions_built - by_helpers, lost, why)
             w.close()
 
+    def helper_pids(self) -> list[int]:
+        """The layer helper's process, while it runs (a helper started later by this service inherits its scheduling)."""
+        w = self.layer_worker
+        return [w.proc.pid] if w is not None and w.proc.pid is not None and w.proc.is_alive() else []
+
     def layer_beside_d(self, occupancy: OccupancyMap, dead: np.ndarray | None) -> Callable[[], FrontierLayer] | None:
         """The decision's frontier layer, started in the helper process (``build`` waits for it once D
         is done); None when there is no helper to use (``build`` computes it)."""

@@ -586,16 +586,19 @@ def zenoh_threads_and_main(pid: int) -> dict[int, str]:
     and the like; ``app-N`` with more than one worker)."""
     threads = {}
     for task in Path(f"/proc/{pid}/task").iterdir():
-        name = (task / "comm").read_text().strip()
+        try:
+            name = (task / "comm").read_text().strip()
+        except FileNotFoundError:  # a thread that ended meanwhile
+            continue
         if int(task.name) == pid or re.fullmatch(r"(rx|tx|app|net|acc)-\d+", name):
             threads[int(task.name)] = name
     return threads
 
 
 def test_up_with_a_realtime_priority_runs_its_services_under_sched_fifo_or_says_why_not_and_the_episode_is_the_same(tmp_path):
-    """``realtime_priority``: every service sets SCHED_FIFO on itself before its Zenoh session opens, so its main thread,
-    its Zenoh threads and the frontier service's layer helper run under it, and the episode is step for step the
-    in-process one. Where the machine does not permit it (no CAP_SYS_NICE, no rtprio limit), ``up`` says so once before
+    """``realtime_priority``: every service sets SCHED_FIFO on every thread of its process and of its helper processes once
+    it has warmed up, before it says it is up, so its main thread, its Zenoh threads and the frontier service's layer
+    helper run under it, and the episode is step for step the in-process one. Where the machine does not permit it (no CAP_SYS_NICE, no rtprio limit), ``up`` says so once before
     anything starts, each service's log says so, and they run with normal scheduling."""
     from cso_runtime.processes import realtime_refusal
 
@@ -632,9 +635,9 @@ def test_up_with_a_realtime_priority_runs_its_services_under_sched_fifo_or_says_
             assert status["services"][name]["counters"].get("realtime_priority", 0) == (7 if refusal is None else 0), (name, status["services"][name])
         frontier = info["services"]["frontier"]["pid"]
         children = [int(c) for c in Path(f"/proc/{frontier}/task/{frontier}/children").read_text().split()]
-        assert any(b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes() for c in children), children  # the layer helper
-        for child in children:  # and multiprocessing's resource tracker
-            assert (os.sched_getscheduler(child), os.sched_getparam(child).sched_priority) == expected_policy
+        (helper,) = [c for c in children if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]  # the layer helper
+        for tid in zenoh_threads_and_main(helper):
+            assert (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority) == expected_policy
         _, err = up.communicate(timeout=120)
         assert up.returncode == 0, err[-3000:]
         assert err.count("warning: realtime_priority 7") == (0 if refusal is None else 1)
