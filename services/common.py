@@ -226,8 +226,8 @@ class Service:
         """Restores at start (``restore_from_cache``) that got no answer from the referee's cache in time, the service
         started afresh: counted as the status's ``cache_unanswered`` (told apart from a cache with nothing kept)."""
         self.realtime_priority = 0
-        """The SCHED_FIFO priority this process runs under (the profile's ``realtime_priority``, set as it started:
-        ``use_profile_realtime_priority``); 0: the normal scheduling. The status's ``realtime_priority`` count."""
+        """The SCHED_FIFO priority this process runs under (the profile's ``realtime_priority``, set once it has warmed
+        up: ``use_profile_realtime_priority``); 0: the normal scheduling. The status's ``realtime_priority`` count."""
         self.step_guard = StepGuard()
         self.last_step = 0
         self._state_and_reason = ("running", "")
